@@ -1,0 +1,122 @@
+"""Warehouse and random map generators, map specs, and placement of robots and goals.
+
+A map spec is what `--map` accepts: a `.map` file path, a named map
+(`warehouse-small`, `warehouse-450`), or a generator with parameters
+(`warehouse:blocks_x=8,blocks_y=10`, `random:width=32,height=32,density=0.2`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+
+from protocol.errors import MapError
+from protocol.mapfile import Cell, read_map
+
+
+def warehouse(blocks_x: int, blocks_y: int, shelf_w: int = 10, shelf_h: int = 2, aisle: int = 2,
+              dock: int = 27, margin: int = 1) -> np.ndarray:
+    """Shelf blocks in a rectangular array, aisles between, docks left and right, a wall around.
+
+    `warehouse(33, 112)` is the paper's 450x450 warehouse, cell for cell the
+    one in `shared/benchmarks/paper-warehouse-450/`.
+    """
+    for name, v in (("blocks_x", blocks_x), ("blocks_y", blocks_y), ("shelf_w", shelf_w), ("shelf_h", shelf_h)):
+        if v < 1:
+            raise MapError(f"warehouse: {name} must be at least 1, got {v}")
+    if aisle < 1 or dock < 1 or margin < 1:
+        raise MapError("warehouse: aisle, dock and margin must be at least 1 cell")
+    width = 2 + 2 * dock + blocks_x * shelf_w + (blocks_x - 1) * aisle
+    height = 2 + 2 * margin + blocks_y * shelf_h + (blocks_y - 1) * aisle
+    free = np.ones((height, width), dtype=bool)
+    free[0, :] = free[-1, :] = free[:, 0] = free[:, -1] = False
+    for by in range(blocks_y):
+        y0 = 1 + margin + by * (shelf_h + aisle)
+        for bx in range(blocks_x):
+            x0 = 1 + dock + bx * (shelf_w + aisle)
+            free[y0:y0 + shelf_h, x0:x0 + shelf_w] = False
+    return free
+
+
+def random_map(width: int, height: int, density: float, seed: int) -> np.ndarray:
+    """Obstacles on a `density` fraction of cells, uniformly at random (seeded)."""
+    if width < 2 or height < 2:
+        raise MapError(f"random map: size {width}x{height} is too small")
+    if not 0.0 <= density < 1.0:
+        raise MapError(f"random map: density must be in [0, 1), got {density}")
+    rng = np.random.default_rng(seed)
+    free = np.ones(width * height, dtype=bool)
+    free[rng.choice(width * height, size=int(round(density * width * height)), replace=False)] = False
+    return free.reshape(height, width)
+
+
+NAMED = {
+    "warehouse-small": dict(blocks_x=3, blocks_y=4, shelf_w=4, shelf_h=2, aisle=2, dock=3, margin=1),
+    "warehouse-450": dict(blocks_x=33, blocks_y=112),
+}
+
+
+def _params(text: str, spec: str) -> dict[str, float]:
+    out: dict[str, float] = {}
+    for part in filter(None, text.split(",")):
+        key, sep, value = part.partition("=")
+        try:
+            out[key.strip()] = float(value)
+        except ValueError:
+            raise MapError(f"map spec {spec!r}: {part!r} is not name=number") from None
+        if not sep:
+            raise MapError(f"map spec {spec!r}: {part!r} is not name=number")
+    return out
+
+
+def resolve_map(spec: str, seed: int = 0) -> tuple[str, np.ndarray]:
+    """A `--map` value -> (name, free[y, x])."""
+    if spec.endswith(".map") or Path(spec).is_file():
+        return Path(spec).stem, read_map(spec)
+    if spec in NAMED:
+        return spec, warehouse(**NAMED[spec])
+    kind, _, rest = spec.partition(":")
+    p = _params(rest, spec)
+    try:
+        if kind == "warehouse":
+            return spec, warehouse(**{k: int(v) for k, v in p.items()})
+        if kind == "random":
+            return spec, random_map(int(p.get("width", 32)), int(p.get("height", 32)),
+                                    float(p.get("density", 0.2)), int(p.get("seed", seed)))
+    except TypeError as exc:
+        raise MapError(f"map spec {spec!r}: {exc}") from None
+    raise MapError(f"unknown map {spec!r}: give a .map file, {', '.join(NAMED)}, "
+                   "'warehouse:blocks_x=..,blocks_y=..' or 'random:width=..,height=..,density=..'")
+
+
+def largest_component(free: np.ndarray) -> np.ndarray:
+    """Mask of the largest 4-connected free region: every goal placed in it is reachable."""
+    labels, n = ndimage.label(free)
+    if n == 0:
+        raise MapError("the map has no free cell")
+    sizes = np.bincount(labels.ravel())
+    sizes[0] = 0
+    return labels == int(np.argmax(sizes))
+
+
+@dataclass(frozen=True)
+class Placement:
+    starts: list[Cell]   # robot i starts at starts[i]
+    goals: list[Cell]    # goal j; which robot takes it is the planner's business
+
+
+def place(free: np.ndarray, robots: int, seed: int) -> Placement:
+    """Robots and goals on 2N distinct free cells of the largest connected region (seeded)."""
+    if robots < 1:
+        raise MapError(f"the number of robots must be at least 1, got {robots}")
+    region = np.flatnonzero(largest_component(free))
+    if 2 * robots > region.size:
+        raise MapError(f"{robots} robots and {robots} goals need {2 * robots} free connected cells; "
+                       f"the map has {region.size}")
+    rng = np.random.default_rng(seed)
+    cells = rng.choice(region, size=2 * robots, replace=False)
+    w = free.shape[1]
+    xy = [(int(c % w), int(c // w)) for c in cells]
+    return Placement(starts=xy[:robots], goals=xy[robots:])
