@@ -59,6 +59,12 @@ class Handle:
             pass
 
 
+class PendingRequest(ABC):
+    @abstractmethod
+    def wait(self) -> list[bytes]:
+        """The replies that arrived before the request's timeout."""
+
+
 class Transport(ABC):
     @abstractmethod
     def put(self, key: str, payload: bytes) -> None: ...
@@ -70,7 +76,11 @@ class Transport(ABC):
     def serve(self, key: str, handler: Callable[[IncomingQuery], None]) -> Handle: ...
 
     @abstractmethod
-    def request(self, key: str, payload: bytes, timeout: float) -> list[bytes]: ...
+    def request_start(self, key: str, payload: bytes, timeout: float) -> PendingRequest:
+        """Send a query without waiting: a pool of robots asks for all its moves at once."""
+
+    def request(self, key: str, payload: bytes, timeout: float) -> list[bytes]:
+        return self.request_start(key, payload, timeout).wait()
 
     @abstractmethod
     def announce(self, key: str) -> Handle: ...
@@ -114,6 +124,14 @@ class _ZenohQuery(IncomingQuery):
                 self._q.drop()
 
 
+class _ZenohPending(PendingRequest):
+    def __init__(self, replies: Any) -> None:
+        self._replies = replies
+
+    def wait(self) -> list[bytes]:
+        return [r.ok.payload.to_bytes() for r in self._replies if r.ok is not None]
+
+
 class ZenohTransport(Transport):
     def __init__(self, config_json5: str, name: str = "session") -> None:
         import zenoh
@@ -153,12 +171,8 @@ class ZenohTransport(Transport):
         qbl = self.session.declare_queryable(key, lambda q: h(_ZenohQuery(q)), complete=True)
         return self._keep(Handle(qbl.undeclare, qbl))
 
-    def request(self, key: str, payload: bytes, timeout: float) -> list[bytes]:
-        out: list[bytes] = []
-        for reply in self.session.get(key, payload=payload, timeout=timeout):
-            if reply.ok is not None:
-                out.append(reply.ok.payload.to_bytes())
-        return out
+    def request_start(self, key: str, payload: bytes, timeout: float) -> PendingRequest:
+        return _ZenohPending(self.session.get(key, payload=payload, timeout=timeout))
 
     def announce(self, key: str) -> Handle:
         tok = self.session.liveliness().declare_token(key)
@@ -220,6 +234,18 @@ class _MemoryQuery(IncomingQuery):
         self.event.set()
 
 
+class _MemoryPending(PendingRequest):
+    def __init__(self, queries: list[_MemoryQuery], deadline: float) -> None:
+        self._queries, self._deadline = queries, deadline
+
+    def wait(self) -> list[bytes]:
+        out: list[bytes] = []
+        for q in self._queries:
+            if q.event.wait(max(0.0, self._deadline - time.monotonic())):
+                out.extend(q.replies)
+        return out
+
+
 class MemoryTransport(Transport):
     def __init__(self, bus: MemoryBus) -> None:
         self.bus = bus
@@ -248,17 +274,15 @@ class MemoryTransport(Transport):
     def serve(self, key: str, handler: Callable[[IncomingQuery], None]) -> Handle:
         return self._add(self.bus.queryables, (key, _guard(handler, f"queryable {key}")))
 
-    def request(self, key: str, payload: bytes, timeout: float) -> list[bytes]:
+    def request_start(self, key: str, payload: bytes, timeout: float) -> PendingRequest:
         with self.bus.lock:
             targets = [h for pat, h in self.bus.queryables if _matches(key, pat) or _matches(pat, key)]
-        out: list[bytes] = []
-        deadline = time.monotonic() + timeout
+        queries = []
         for h in targets:
             q = _MemoryQuery(key, payload)
             h(q)
-            if q.event.wait(max(0.0, deadline - time.monotonic())):
-                out.extend(q.replies)
-        return out
+            queries.append(q)
+        return _MemoryPending(queries, time.monotonic() + timeout)
 
     def announce(self, key: str) -> Handle:
         token = object()
