@@ -1,0 +1,19 @@
+import socket
+
+import pytest
+
+
+def _free_port(kind=socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def zenoh_endpoint() -> str:
+    return f"tcp/127.0.0.1:{_free_port()}"
+
+
+@pytest.fixture
+def udp_port() -> int:
+    return _free_port(socket.SOCK_DGRAM)

@@ -1,0 +1,128 @@
+"""The UAV's view of the fleet over the transport: who is alive, acks, per-tick states, done flags.
+
+Callbacks only record what arrived (checked against the key they came on, so a
+robot cannot speak for another); the mission thread waits on the condition.
+"""
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from typing import Callable
+
+from protocol.errors import MissionError, ProtocolError
+from protocol.keys import Keys, robot_id_from_key
+from protocol.messages import Done, PlanAck, RobotState, decode
+from protocol.transport import Transport
+
+
+class FleetLink:
+    def __init__(self, transport: Transport, keys: Keys) -> None:
+        self.transport, self.keys = transport, keys
+        self.cv = threading.Condition()
+        self.alive: set[int] = set()
+        self.lost: set[int] = set()
+        self.world_alive = False
+        self.acks: dict[int, PlanAck] = {}
+        self.last_tick: dict[int, int] = {}
+        self.cells: dict[int, tuple[int, int]] = {}
+        self.errors: dict[int, str] = {}
+        self.done: dict[int, Done] = {}
+        self.rejected = 0
+        self._warned = 0.0
+        self._handles = [
+            transport.subscribe(keys.all_acks, self._on_ack),
+            transport.subscribe(keys.all_states, self._on_state),
+            transport.subscribe(keys.all_done, self._on_done),
+            transport.watch_alive(keys.alive_robots, self._on_robot_alive),
+            transport.watch_alive(keys.alive_world, self._on_world_alive),
+        ]
+
+    def _reject(self, key: str, why: str) -> None:
+        with self.cv:
+            self.rejected += 1
+        now = time.monotonic()
+        if now - self._warned > 1.0:
+            self._warned = now
+            print(f"warning: ignored message on {key}: {why}", file=sys.stderr, flush=True)
+
+    def _decode(self, key: str, payload: bytes, cls):
+        rid = robot_id_from_key(key)
+        try:
+            msg = decode(payload, cls)
+        except ProtocolError as exc:
+            self._reject(key, str(exc))
+            return None
+        if msg.robot != rid:
+            self._reject(key, f"message for robot {msg.robot} sent on robot {rid}'s key")
+            return None
+        return msg
+
+    def _on_ack(self, key: str, payload: bytes) -> None:
+        msg = self._decode(key, payload, PlanAck)
+        if msg is not None:
+            with self.cv:
+                self.acks[msg.robot] = msg
+                self.cv.notify_all()
+
+    def _on_state(self, key: str, payload: bytes) -> None:
+        msg = self._decode(key, payload, RobotState)
+        if msg is not None:
+            with self.cv:
+                if msg.tick >= self.last_tick.get(msg.robot, -1):
+                    self.last_tick[msg.robot] = msg.tick
+                    self.cells[msg.robot] = msg.cell
+                if msg.status == "error":
+                    self.errors[msg.robot] = msg.error or "robot reported an error"
+                self.cv.notify_all()
+
+    def _on_done(self, key: str, payload: bytes) -> None:
+        msg = self._decode(key, payload, Done)
+        if msg is not None:
+            with self.cv:
+                self.done.setdefault(msg.robot, msg)
+                self.cv.notify_all()
+
+    def _on_robot_alive(self, key: str, alive: bool) -> None:
+        rid = robot_id_from_key(key)
+        if rid is None:
+            return
+        with self.cv:
+            if alive:
+                self.alive.add(rid)
+                self.lost.discard(rid)
+            elif rid in self.alive:
+                self.alive.discard(rid)
+                self.lost.add(rid)
+            self.cv.notify_all()
+
+    def _on_world_alive(self, key: str, alive: bool) -> None:
+        with self.cv:
+            self.world_alive = alive
+            self.cv.notify_all()
+
+    def wait_until(self, ready: Callable[[], bool], timeout: float, failure: Callable[[], str],
+                   abort: Callable[[], str | None] | None = None) -> None:
+        """Block until `ready()` (evaluated under the lock), or raise MissionError with `failure()`."""
+        deadline = time.monotonic() + timeout
+        with self.cv:
+            while not ready():
+                if abort is not None and (why := abort()):
+                    raise MissionError(why)
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise MissionError(failure())
+                self.cv.wait(min(left, 0.5))
+
+    def lost_among(self, robots: list[int]) -> str | None:
+        gone = sorted(set(robots) & self.lost)
+        if gone:
+            return f"robot(s) {gone} lost (liveliness gone)"
+        bad = sorted(set(robots) & set(self.errors))
+        if bad:
+            return f"robot {bad[0]} failed: {self.errors[bad[0]]}"
+        return None
+
+    def close(self) -> None:
+        for h in self._handles:
+            h.close()
