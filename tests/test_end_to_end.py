@@ -1,0 +1,102 @@
+"""The whole mission with real processes, real Zenoh on loopback, real MAVLink over UDP (MAVSDK)."""
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import psutil
+import pytest
+
+from protocol.mapfile import parse_rows
+from uav_agent.planning.types import Problem
+from uav_agent.planning.validator import validate
+
+CLI = [sys.executable, "-m", "uav_agent.cli"]
+
+
+def _run(args, timeout):
+    return subprocess.run(CLI + args, capture_output=True, text=True, timeout=timeout)
+
+
+def _no_survivors(pids, timeout=5.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        alive = [p for p in pids if psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
+        if not alive:
+            return []
+        time.sleep(0.1)
+    return alive
+
+
+def _check_report(report):
+    assert report["format"] == "uav-robots-report/1"
+    assert report["completed"] is True
+    assert report["collisions"] == 0
+    n = report["robots"]
+    assert sorted(report["done"]) == list(range(n))
+    plan = report["plan"]
+    free = parse_rows(plan["map"]["rows"])
+    robots = sorted(plan["robots"], key=lambda r: r["id"])
+    paths = [[tuple(c) for c in r["path"]] for r in robots]
+    problem = Problem(free, [tuple(r["start"]) for r in robots], [tuple(r["goal"]) for r in robots],
+                      plan["connectivity"])
+    assert validate(problem, paths) == []
+    # Every robot executed exactly its plan, one cell per tick, then stayed on its goal.
+    ticks = report["ticks"]
+    for r, path in zip(robots, paths):
+        executed = [tuple(c) for c in report["executed"][str(r["id"])]]
+        assert executed == path + [path[-1]] * (ticks + 1 - len(path))
+    # The UAV saw the floor as it is: perception equals the world's ground truth.
+    assert report["perceived"]["rows"] == report["truth"]["rows"]
+    assert report["perceived"]["robots"] == report["truth"]["robots"]
+    assert sorted(map(tuple, report["perceived"]["goals"])) == sorted(map(tuple, report["truth"]["goals"]))
+    uav = report["uav"]
+    assert uav["armed"] and uav["landed"] and uav["max_altitude_m"] > 1.0
+
+
+def test_default_mission(tmp_path):
+    t0 = time.monotonic()
+    res = _run(["run", "--out", str(tmp_path)], timeout=180)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    assert "mission COMPLETED" in res.stdout
+    report = json.loads((tmp_path / "report.json").read_text())
+    _check_report(report)
+    assert report["robots"] == 8
+    for name in ("overhead.png", "paths.png", "replay.gif"):
+        assert (tmp_path / name).stat().st_size > 1000
+    procs = report["processes"]
+    assert len(procs["robots"]) == 8  # one OS process per robot
+    assert _no_survivors([procs["uav"], procs["world"], *procs["robots"]]) == []
+    print(f"default mission wall time {time.monotonic() - t0:.1f} s")
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--map", "/nonexistent.map"], "map file not found"),
+    (["--robots", "500"], "free connected cells"),
+    (["--planner", "nope"], "nope"),
+    (["--map", "random:width"], "not name=number"),
+])
+def test_bad_input_is_one_line_exit_2(args, needle, tmp_path):
+    res = _run(["run", *args], timeout=60)
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error:") and needle in lines[0], res.stderr
+
+
+def test_malformed_map_file(tmp_path):
+    bad = tmp_path / "bad.map"
+    bad.write_text("type octile\nheight 3\nwidth 3\nmap\n...\n")
+    res = _run(["run", "--map", str(bad)], timeout=60)
+    assert res.returncode == 2 and "3 rows, file has 1" in res.stderr and "Traceback" not in res.stderr
+
+
+@pytest.mark.slow
+def test_paper_setting_450_with_50_robots(tmp_path):
+    t0 = time.monotonic()
+    res = _run(["run", "--map", "warehouse-450", "--robots", "50", "--out", str(tmp_path)], timeout=400)
+    wall = time.monotonic() - t0
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    report = json.loads((tmp_path / "report.json").read_text())
+    _check_report(report)
+    print(f"450x450 / 50 robots wall time {wall:.1f} s, timings {report['timings']}")
