@@ -70,6 +70,23 @@ class MoveResult(Message):
 
 
 @dataclass(frozen=True)
+class MoveBatch(Message):
+    """A pool hosting many robots -> world: all its moves of one tick in one query.
+
+    moves: (robot, frm, to) each; answered by one MoveBatchResult.
+    """
+    tick: int
+    moves: list[tuple[int, Cell, Cell]]
+
+
+@dataclass(frozen=True)
+class MoveBatchResult(Message):
+    """results: (robot, accepted, cell, reason) for every move of the MoveBatch."""
+    tick: int
+    results: list[tuple[int, bool, Cell, str]]
+
+
+@dataclass(frozen=True)
 class RobotState(Message):
     robot: int
     tick: int
@@ -157,7 +174,7 @@ class MissionEnd(Message):
 
 MESSAGE_TYPES: dict[str, type[Message]] = {
     cls.__name__: cls
-    for cls in (Plan, PlanAck, Tick, MoveRequest, MoveResult, RobotState, Done, CameraRequest,
+    for cls in (Plan, PlanAck, Tick, MoveRequest, MoveResult, MoveBatch, MoveBatchResult, RobotState, Done, CameraRequest,
                 CameraFrame, WorldInfoRequest, WorldInfo, RecordRequest, Record, MissionStatus, MissionEnd)
 }
 

@@ -277,7 +277,7 @@ class Mission:
         from .planning.plan_io import plan_to_dict
 
         record = _query(self.transport, self.keys.record, RecordRequest(seq=self._next()), Record, "record")
-        plan = plan_to_dict(result, model.free, ids=self.ids, connectivity=self.cfg.connectivity)
+        plan = plan_to_dict(result, model.free, ids=self.ids)
         from protocol.mapfile import format_rows
 
         self.report.update({

@@ -1,0 +1,83 @@
+"""Options and fixtures of the robot conformance suite.
+
+    python -m pytest protocol/conformance --robot-cmd "my-robot --id {id} --fleet {fleet} --router {endpoint}"
+"""
+from __future__ import annotations
+
+import pytest
+
+from protocol.conformance import DEFAULT_ROBOT_CMD, FakeUav, FakeWorld, Hub, start_robot, stop_process
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    group = parser.getgroup("uav-robots conformance")
+    group.addoption("--robot-cmd", default=DEFAULT_ROBOT_CMD,
+                    help="command line of the robot under test; placeholders {id} {fleet} {endpoint}")
+    group.addoption("--robot-id", type=int, default=7, help="the robot id to start it with")
+    group.addoption("--robot-timeout", type=float, default=10.0,
+                    help="seconds a robot gets to come alive (and to answer anything)")
+
+
+@pytest.fixture
+def robot_cmd(request: pytest.FixtureRequest) -> str:
+    return request.config.getoption("--robot-cmd")
+
+
+@pytest.fixture
+def rid(request: pytest.FixtureRequest) -> int:
+    return request.config.getoption("--robot-id")
+
+
+@pytest.fixture
+def timeout(request: pytest.FixtureRequest) -> float:
+    return request.config.getoption("--robot-timeout")
+
+
+@pytest.fixture
+def hub():
+    with Hub() as h:
+        yield h
+
+
+@pytest.fixture
+def uav(hub):
+    u = FakeUav(hub.transport, hub.keys)
+    yield u
+    u.close()
+
+
+@pytest.fixture
+def world(hub):
+    w = FakeWorld(hub.transport, hub.keys)
+    yield w
+    w.close()
+
+
+@pytest.fixture
+def spawn(hub, robot_cmd, rid, tmp_path):
+    """Start the robot under test; always stopped (and killed if need be) afterwards."""
+    procs = []
+
+    def start():
+        proc = start_robot(robot_cmd, rid, hub.fleet, hub.endpoint, tmp_path / f"robot-{len(procs)}.log")
+        procs.append(proc)
+        return proc
+
+    yield start
+    for p in procs:
+        stop_process(p)
+
+
+@pytest.fixture
+def robot(spawn, uav, world, rid, timeout, tmp_path):
+    """A running robot whose liveliness token has been seen."""
+    proc = spawn()
+    if not uav.until(lambda: rid in uav.alive or proc.poll() is not None, timeout):
+        pytest.fail(f"robot {rid} declared no liveliness token within {timeout:g} s; log:\n{_log(tmp_path)}")
+    if proc.poll() is not None:
+        pytest.fail(f"robot {rid} exited with code {proc.returncode} at startup; log:\n{_log(tmp_path)}")
+    return proc
+
+
+def _log(tmp_path) -> str:
+    return "\n".join(p.read_text(errors="replace")[-2000:] for p in sorted(tmp_path.glob("robot-*.log")))

@@ -1,0 +1,200 @@
+"""The physics of robot steps: which moves of one tick the floor allows.
+
+`MoveJudge` is the world's referee. All moves of a tick happen at once, so a
+robot may follow another into the cell it leaves, but two robots may never end
+in one cell, swap cells, or (8-connected) cross diagonals. A refused robot
+stays where it is, which can block a robot that wanted to follow it: refusals
+are propagated until nothing changes. Pure: no clock, no network.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from protocol.errors import UavRobotsError
+
+Cell = tuple[int, int]
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What happened to one robot's request (the fields of a `MoveResult`)."""
+    robot: int
+    tick: int
+    accepted: bool
+    cell: Cell
+    reason: str = ""
+
+
+@dataclass(frozen=True)
+class Refusal:
+    tick: int
+    robot: int
+    frm: Cell | None
+    to: Cell | None
+    reason: str
+    collision: bool  # False for protocol slips (late tick, unknown robot, missing request)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"tick": self.tick, "robot": self.robot,
+                "from": list(self.frm) if self.frm is not None else None,
+                "to": list(self.to) if self.to is not None else None,
+                "reason": self.reason, "collision": self.collision}
+
+
+@dataclass
+class MoveJudge:
+    free: np.ndarray
+    positions: dict[int, Cell]
+    connectivity: int = 4
+    tick: int = 0                                   # the last resolved tick
+    record: dict[int, list[Cell]] = field(default_factory=dict)
+    collisions: int = 0
+    refused: list[Refusal] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if self.connectivity not in (4, 8):
+            raise UavRobotsError(f"connectivity must be 4 or 8, got {self.connectivity}")
+        self.positions = {int(r): (int(c[0]), int(c[1])) for r, c in self.positions.items()}
+        seen: dict[Cell, int] = {}
+        for r, c in self.positions.items():
+            if not self._on_free(c):
+                raise UavRobotsError(f"robot {r} starts at {c}, which is not a free cell")
+            if c in seen:
+                raise UavRobotsError(f"robots {seen[c]} and {r} both start at {c}")
+            seen[c] = r
+        if not self.record:
+            self.record = {r: [c] for r, c in self.positions.items()}
+
+    # ----------------------------------------------------------- geometry
+    def _on_free(self, c: Cell) -> bool:
+        h, w = self.free.shape
+        return 0 <= c[0] < w and 0 <= c[1] < h and bool(self.free[c[1], c[0]])
+
+    def _step_problem(self, frm: Cell, to: Cell) -> str:
+        """Why one robot alone could not make this step ('' if it could)."""
+        h, w = self.free.shape
+        if not (0 <= to[0] < w and 0 <= to[1] < h):
+            return f"{to} is off the {w}x{h} grid"
+        if not self.free[to[1], to[0]]:
+            return f"{to} is an obstacle"
+        dx, dy = to[0] - frm[0], to[1] - frm[1]
+        if self.connectivity == 4 and abs(dx) + abs(dy) > 1:
+            return f"{frm} -> {to} is not a 4-connected step"
+        if max(abs(dx), abs(dy)) > 1:
+            return f"{frm} -> {to} is more than one cell"
+        if dx and dy and not (self.free[frm[1], to[0]] and self.free[to[1], frm[0]]):
+            return f"{frm} -> {to} cuts an obstacle's corner"
+        return ""
+
+    # ------------------------------------------------------------- a tick
+    def resolve(self, tick: int, requests: Mapping[int, tuple[Cell, Cell]]) -> dict[int, Outcome]:
+        """Apply one tick's moves simultaneously; robots without a request stay.
+
+        Returns an outcome for every requesting robot (known or not). A tick at
+        or before the last resolved one changes nothing.
+        """
+        out: dict[int, Outcome] = {}
+        if tick <= self.tick:
+            for r, (frm, to) in requests.items():
+                out[r] = self.slip(tick, r, frm, to, f"tick {tick} is over (the world is at tick {self.tick})")
+            return out
+        for r, (frm, to) in requests.items():
+            if r not in self.positions:
+                out[r] = self.slip(tick, r, frm, to, f"unknown robot {r}")
+        # Ticks nobody asked for are ticks where everybody stayed.
+        for t in range(self.tick + 1, tick):
+            for r, c in self.positions.items():
+                self.record[r].append(c)
+
+        pos = self.positions
+        target: dict[int, Cell] = {}
+        why: dict[int, str] = {}
+        for r, (frm, to) in requests.items():
+            if r not in pos:
+                continue
+            frm, to = (int(frm[0]), int(frm[1])), (int(to[0]), int(to[1]))
+            if frm != pos[r]:
+                why[r] = f"robot {r} is at {pos[r]}, not at {frm}"
+            elif to != frm:
+                problem = self._step_problem(frm, to)
+                if problem:
+                    why[r] = problem
+                else:
+                    target[r] = to
+        self._settle(target, why)
+
+        for r, (frm, to) in requests.items():
+            if r not in pos:
+                continue
+            if r in why:
+                self.collisions += 1
+                self.refused.append(Refusal(tick, r, tuple(frm), tuple(to), why[r], True))
+                out[r] = Outcome(r, tick, False, pos[r], why[r])
+        for r, to in target.items():
+            pos[r] = to
+        for r, (frm, to) in requests.items():
+            if r in pos and r not in why:
+                out[r] = Outcome(r, tick, True, pos[r])
+        for r, c in pos.items():
+            self.record[r].append(c)
+        self.tick = tick
+        return out
+
+    def _settle(self, target: dict[int, Cell], why: dict[int, str]) -> None:
+        """Drop conflicting moves from `target` (reasons into `why`) until the rest is consistent."""
+        pos = self.positions
+        changed = True
+        while changed:
+            changed = False
+            after: dict[Cell, list[int]] = {}
+            for r, c in pos.items():
+                after.setdefault(target.get(r, c), []).append(r)
+            for cell, rs in after.items():
+                if len(rs) < 2:
+                    continue
+                stayer = next((r for r in rs if r not in target), None)
+                for r in rs:
+                    if r in target:
+                        other = stayer if stayer is not None else next(o for o in rs if o != r)
+                        why[r] = (f"{cell} is taken by robot {other}" if stayer is not None
+                                  else f"robots {sorted(rs)} all moving into {cell}")
+                        changed = True
+                for r in rs:
+                    target.pop(r, None)
+            origin = {pos[r]: r for r in target}
+            clash: dict[int, str] = {}
+            for r, to in target.items():
+                s = origin.get(to)
+                if s is not None and s != r and target.get(s) == pos[r]:
+                    clash[r] = f"swap with robot {s} between {pos[r]} and {to}"
+                frm = pos[r]
+                if self.connectivity == 8 and frm[0] != to[0] and frm[1] != to[1]:
+                    # The other diagonal of the same 2x2 square, travelled either way.
+                    a, b = (to[0], frm[1]), (frm[0], to[1])
+                    for start, end in ((a, b), (b, a)):
+                        s = origin.get(start)
+                        if s is not None and target.get(s) == end:
+                            clash[r] = f"diagonal crossing with robot {s}"
+            for r, reason in clash.items():
+                why[r] = reason
+                del target[r]
+                changed = True
+
+    def slip(self, tick: int, robot: int, frm: Cell, to: Cell, reason: str) -> Outcome:
+        self.refused.append(Refusal(tick, robot, tuple(frm), tuple(to), reason, False))
+        return Outcome(robot, tick, False, self.positions.get(robot, tuple(frm)), reason)
+
+    def note_missing(self, tick: int, robots: list[int], reason: str) -> None:
+        """Robots that sent no request for a resolved tick (they stayed): reported, not collisions."""
+        for r in robots:
+            self.refused.append(Refusal(tick, r, None, None, reason, False))
+
+    # -------------------------------------------------------------- views
+    def executed(self) -> dict[str, list[Cell]]:
+        return {str(r): list(cells) for r, cells in sorted(self.record.items())}
+
+    def refused_dicts(self) -> list[dict[str, Any]]:
+        return [f.as_dict() for f in self.refused]

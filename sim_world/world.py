@@ -1,0 +1,579 @@
+"""The world process: ground truth, the vehicle, the camera and the move service on Zenoh.
+
+It owns what physically exists: the floor, where every robot stands, the goal
+markers and the multicopter. It serves, under `uavr/<fleet>/world/`:
+`info` (site calibration), `camera` (the image seen from the vehicle's current
+pose), `move` (one tick's moves, judged together) and `record` (what happened,
+for scoring). It announces `alive/world` once all of them are declared.
+
+    python -m sim_world.world --fleet F --connect tcp/127.0.0.1:7447 --robots 8
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import signal
+import sys
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from protocol.config import DEFAULT_ENDPOINT, client_config, config_from_file, hub_config
+from protocol.errors import ProtocolError, UavRobotsError
+from protocol.keys import Keys
+from protocol.mapfile import Cell, format_rows, read_scen
+from protocol.messages import (CameraRequest, MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Record,
+                               RecordRequest, WorldInfo, WorldInfoRequest, decode, encode)
+from protocol.transport import Handle, IncomingQuery, Transport, ZenohTransport
+
+from .maps import place, resolve_map
+from .moves import MoveJudge, Outcome
+
+# PX4 SITL's default home: a field near Zurich. The grid's top-left corner is there.
+HOME = (47.397742, 8.545594, 488.0)
+MOVE_BATCH_TIMEOUT_S = 2.0
+WARN_INTERVAL_S = 1.0
+
+
+@dataclass
+class WorldConfig:
+    fleet: str
+    map: str = "warehouse-small"
+    robots: int = 8
+    seed: int = 0
+    scen: str | None = None           # a MovingAI .scen: starts and goals from its first `robots` lines
+    connectivity: int = 4
+    cell_size_m: float = 1.0
+    home_lat: float = HOME[0]
+    home_lon: float = HOME[1]
+    home_alt_m: float = HOME[2]
+    mavlink: str | None = "udpout:127.0.0.1:14540"   # None: no vehicle (tests of the services alone)
+    time_scale: float = 1.0
+    camera: dict[str, Any] = field(default_factory=dict)  # sim_world.camera.CameraModel fields
+    camera_height_m: float = 0.3      # lens above the floor when the vehicle sits on it
+    connect: list[str] = field(default_factory=list)
+    listen: list[str] = field(default_factory=list)
+    zenoh_config: str | None = None
+    move_batch_timeout_s: float = MOVE_BATCH_TIMEOUT_S
+    end_timeout_s: float = 120.0      # after MissionEnd, the longest wait for the UAV to leave
+
+    def check(self) -> None:
+        Keys(self.fleet)
+        if self.connectivity not in (4, 8):
+            raise UavRobotsError(f"connectivity must be 4 or 8, got {self.connectivity}")
+        if not self.cell_size_m > 0:
+            raise UavRobotsError(f"cell size must be positive, got {self.cell_size_m}")
+        if not self.move_batch_timeout_s > 0:
+            raise UavRobotsError(f"the move batch timeout must be positive, got {self.move_batch_timeout_s}")
+        if not self.time_scale > 0:
+            raise UavRobotsError(f"time scale must be positive, got {self.time_scale}")
+        if self.connect and self.listen:
+            raise UavRobotsError("give --connect or --listen, not both")
+
+
+@dataclass(frozen=True)
+class Truth:
+    name: str
+    free: np.ndarray
+    starts: dict[int, Cell]
+    goals: list[Cell]
+
+
+def build_truth(cfg: WorldConfig) -> Truth:
+    name, free = resolve_map(cfg.map, cfg.seed)
+    if cfg.scen:
+        agents = read_scen(cfg.scen, free, cfg.robots)
+        starts, goals = [a.start for a in agents], [a.goal for a in agents]
+    else:
+        placement = place(free, cfg.robots, cfg.seed)
+        starts, goals = placement.starts, placement.goals
+    return Truth(name, free, {i: c for i, c in enumerate(starts)}, list(goals))
+
+
+class _Throttle:
+    """At most one warning line per interval, so a flood of garbage cannot flood the log."""
+
+    def __init__(self) -> None:
+        self._last = 0.0
+        self.count = 0
+
+    def __call__(self, text: str) -> None:
+        self.count += 1
+        now = time.monotonic()
+        if now - self._last >= WARN_INTERVAL_S:
+            self._last = now
+            print(f"warning: world: {text}", file=sys.stderr, flush=True)
+
+
+Reply = Callable[[MoveResult], None]
+
+
+class MoveDesk:
+    """Collects one tick's move requests and has them judged together.
+
+    A batch is resolved when every robot has asked, when a request for a later
+    tick shows the fleet has moved on, or when the batch timeout expires (the
+    robots that did not ask stay and are reported as missing). Answers are sent
+    outside the lock: a reply may take the transport's time.
+    """
+
+    def __init__(self, judge: MoveJudge, batch_timeout_s: float = MOVE_BATCH_TIMEOUT_S) -> None:
+        self.judge = judge
+        self.batch_timeout_s = batch_timeout_s
+        self.cv = threading.Condition()
+        self.tick: int | None = None                          # the tick being collected
+        self.batch: dict[int, tuple[MoveRequest, Reply]] = {}
+        self.deadline = 0.0
+        self.last: dict[int, tuple[MoveRequest, MoveResult]] = {}
+        self._closed = False
+        self._timer = threading.Thread(target=self._expire_loop, name="move-batches", daemon=True)
+        self._timer.start()
+
+    def submit(self, req: MoveRequest, reply: Reply) -> None:
+        sends: list[tuple[Reply, MoveResult]] = []
+        with self.cv:
+            j = self.judge
+            if req.robot not in j.positions:
+                o = j.slip(req.tick, req.robot, req.frm, req.to, f"unknown robot {req.robot}")
+                sends.append((reply, _result(o)))
+            elif req.tick <= j.tick or (self.tick is not None and req.tick < self.tick):
+                prev = self.last.get(req.robot)
+                if prev and prev[0].tick == req.tick and (prev[0].frm, prev[0].to) == (req.frm, req.to):
+                    sends.append((reply, prev[1]))  # a resent request: the same answer again
+                else:
+                    now = self.tick if self.tick is not None else j.tick
+                    o = j.slip(req.tick, req.robot, req.frm, req.to,
+                                f"tick {req.tick} is over (the world is at tick {now})")
+                    sends.append((reply, _result(o)))
+            else:
+                if self.tick is not None and req.tick > self.tick:
+                    sends += self._resolve(f"no move request before tick {req.tick} began: stayed")
+                if self.tick is None:
+                    self.tick = req.tick
+                    self.deadline = time.monotonic() + self.batch_timeout_s
+                    self.cv.notify_all()
+                old = self.batch.get(req.robot)
+                if old is not None:
+                    sends.append((old[1], MoveResult(robot=req.robot, tick=req.tick, accepted=False,
+                                                     cell=j.positions[req.robot],
+                                                     reason="superseded by a newer request")))
+                self.batch[req.robot] = (req, reply)
+                if len(self.batch) == len(j.positions):
+                    sends += self._resolve("")  # everybody asked: nobody is missing
+        _send(sends)
+
+    def _resolve(self, why_missing: str) -> list[tuple[Reply, MoveResult]]:
+        tick, batch = self.tick, self.batch
+        self.tick, self.batch = None, {}
+        assert tick is not None
+        outcomes = self.judge.resolve(tick, {r: (q.frm, q.to) for r, (q, _) in batch.items()})
+        missing = sorted(set(self.judge.positions) - set(batch))
+        if missing:
+            self.judge.note_missing(tick, missing, why_missing)
+        out = []
+        for r, (q, reply) in batch.items():
+            res = _result(outcomes[r])
+            self.last[r] = (q, res)
+            out.append((reply, res))
+        return out
+
+    def _expire_loop(self) -> None:
+        while True:
+            sends: list[tuple[Reply, MoveResult]] = []
+            with self.cv:
+                if self._closed:
+                    return
+                if self.tick is None:
+                    self.cv.wait(0.5)
+                    continue
+                left = self.deadline - time.monotonic()
+                if left > 0:
+                    self.cv.wait(left)
+                    continue
+                sends = self._resolve(f"no move request within {self.batch_timeout_s:g} s: stayed")
+            _send(sends)
+
+    def close(self) -> None:
+        with self.cv:
+            self._closed = True
+            self.cv.notify_all()
+        self._timer.join(2.0)
+
+
+def _result(o: Outcome) -> MoveResult:
+    return MoveResult(robot=o.robot, tick=o.tick, accepted=o.accepted, cell=o.cell, reason=o.reason)
+
+
+def _send(sends: list[tuple[Reply, MoveResult]]) -> None:
+    for reply, res in sends:
+        try:
+            reply(res)
+        except Exception as exc:  # noqa: BLE001 - one asker gone must not stop the others' answers
+            print(f"warning: world: a move reply failed: {exc}", file=sys.stderr, flush=True)
+
+
+class World:
+    def __init__(self, cfg: WorldConfig, transport: Transport | None = None) -> None:
+        cfg.check()
+        self.cfg = cfg
+        self.keys = Keys(cfg.fleet)
+        self.truth = build_truth(cfg)
+        self.judge = MoveJudge(self.truth.free, dict(self.truth.starts), cfg.connectivity)
+        self.desk: MoveDesk | None = None
+        self.transport = transport
+        self._own_transport = transport is None
+        self.vehicle: Any = None
+        self.camera_model: Any = None
+        self.warn = _Throttle()
+        self.stop = threading.Event()
+        self.exit_reason = ""
+        self.mission_ended: float | None = None
+        self.uav_seen = False
+        self.uav_alive = False
+        self._handles: list[Handle] = []
+        self._camera_pool = ThreadPoolExecutor(1, thread_name_prefix="camera")
+        self._t0 = time.monotonic()
+        self._seq = 0
+        self._seq_lock = threading.Lock()
+
+    # ------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        cfg = self.cfg
+        if cfg.camera:
+            from .camera import CameraModel
+            try:
+                self.camera_model = CameraModel(**cfg.camera)
+            except TypeError as exc:
+                raise UavRobotsError(f"camera options: {exc}") from None
+        if cfg.mavlink:
+            from .vehicle import Vehicle, VehicleConfig
+            self.vehicle = Vehicle(VehicleConfig(url=cfg.mavlink, home_lat=cfg.home_lat, home_lon=cfg.home_lon,
+                                                 home_alt_m=cfg.home_alt_m, time_scale=cfg.time_scale))
+            self.vehicle.start()
+        if self.transport is None:
+            self.transport = ZenohTransport(self._zenoh_config(), "world")
+        self.desk = MoveDesk(self.judge, cfg.move_batch_timeout_s)
+        t, k = self.transport, self.keys
+        self._handles += [
+            t.serve(k.world_info, self._on_info),
+            t.serve(k.camera, self._on_camera),
+            t.serve(k.move, self._on_move),
+            t.serve(k.record, self._on_record),
+            t.subscribe(k.mission_end, self._on_mission_end),
+            t.watch_alive(k.alive_uav, self._on_uav),
+        ]
+        self._handles.append(t.announce(k.alive_world))
+
+    def _zenoh_config(self) -> str:
+        cfg = self.cfg
+        if cfg.zenoh_config:
+            return config_from_file(cfg.zenoh_config)
+        if cfg.listen:
+            return hub_config(cfg.listen)
+        return client_config(cfg.connect or [DEFAULT_ENDPOINT])
+
+    def run(self, poll_s: float = 0.1) -> str:
+        """Serve until stopped; returns why it stopped."""
+        while not self.stop.wait(poll_s):
+            if self.mission_ended is not None:
+                waited = time.monotonic() - self.mission_ended
+                # Stay while the UAV may still fetch the record and land the vehicle.
+                if not self.uav_alive and (self.uav_seen or waited > 1.0):
+                    self._finish("mission ended")
+                elif waited > self.cfg.end_timeout_s:
+                    self._finish(f"mission ended; the UAV stayed {self.cfg.end_timeout_s:g} s longer")
+        return self.exit_reason
+
+    def _finish(self, reason: str) -> None:
+        if not self.stop.is_set():
+            self.exit_reason = reason
+            self.stop.set()
+
+    def close(self) -> None:
+        self.stop.set()
+        for h in reversed(self._handles):
+            h.close()
+        self._handles.clear()
+        if self.desk is not None:
+            self.desk.close()
+        self._camera_pool.shutdown(wait=True, cancel_futures=True)
+        if self.vehicle is not None:
+            try:
+                self.vehicle.stop()
+            finally:
+                self.vehicle = None
+        if self._own_transport and self.transport is not None:
+            self.transport.close()
+            self.transport = None
+
+    def __enter__(self) -> "World":
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def describe(self) -> str:
+        h, w = self.truth.free.shape
+        where = (self.cfg.zenoh_config or (f"listening on {','.join(self.cfg.listen)}" if self.cfg.listen
+                 else f"connected to {','.join(self.cfg.connect or [DEFAULT_ENDPOINT])}"))
+        return (f"fleet {self.cfg.fleet}, map {self.truth.name} {w}x{h}, {len(self.truth.starts)} robots, "
+                f"zenoh {where}, mavlink {self.cfg.mavlink or 'off'}")
+
+    # ------------------------------------------------------------ handlers
+    def _next_seq(self) -> int:
+        with self._seq_lock:
+            self._seq += 1
+            return self._seq
+
+    def _decode(self, q: IncomingQuery, cls: type) -> Any:
+        try:
+            return decode(q.payload, cls)
+        except ProtocolError as exc:
+            self.warn(f"{q.key}: {exc}")
+            q.finish()
+            return None
+
+    def _on_info(self, q: IncomingQuery) -> None:
+        if self._decode(q, WorldInfoRequest) is None:
+            return
+        h, w = self.truth.free.shape
+        c = self.cfg
+        q.reply(encode(WorldInfo(width=w, height=h, cell_size_m=c.cell_size_m, home_lat=c.home_lat,
+                                 home_lon=c.home_lon, home_alt_m=c.home_alt_m, seq=self._next_seq())))
+
+    def _on_move(self, q: IncomingQuery) -> None:
+        batch = b'"MoveBatch"' in q.payload[:200]
+        if batch:
+            self._on_move_batch(q)
+            return
+        req = self._decode(q, MoveRequest)
+        if req is None:
+            return
+        seq = self._next_seq
+
+        def reply(res: MoveResult) -> None:
+            q.reply(encode(dataclasses.replace(res, seq=seq())))
+        assert self.desk is not None
+        self.desk.submit(req, reply)
+
+    def _on_move_batch(self, q: IncomingQuery) -> None:
+        """A pool's moves in one query: each is judged like a MoveRequest, answered all at once."""
+        batch = self._decode(q, MoveBatch)
+        if batch is None:
+            return
+        if not batch.moves:
+            q.reply(encode(MoveBatchResult(tick=batch.tick, results=[], seq=self._next_seq())))
+            return
+        lock = threading.Lock()
+        results: list[MoveResult | None] = [None] * len(batch.moves)
+        left = [len(batch.moves)]
+
+        def collector(i: int) -> Callable[[MoveResult], None]:
+            def reply(res: MoveResult) -> None:
+                with lock:
+                    results[i] = res
+                    left[0] -= 1
+                    if left[0]:
+                        return
+                out = [(r.robot, r.accepted, r.cell, r.reason) for r in results if r is not None]
+                q.reply(encode(MoveBatchResult(tick=batch.tick, results=out, seq=self._next_seq())))
+            return reply
+        assert self.desk is not None
+        for i, (robot, frm, to) in enumerate(batch.moves):
+            self.desk.submit(MoveRequest(robot=robot, tick=batch.tick, frm=frm, to=to), collector(i))
+
+    def _on_record(self, q: IncomingQuery) -> None:
+        if self._decode(q, RecordRequest) is None:
+            return
+        q.reply(encode(self.record()))
+
+    def record(self) -> Record:
+        assert self.desk is not None
+        with self.desk.cv:
+            j = self.judge
+            return Record(ticks=j.tick, collisions=j.collisions, refused=j.refused_dicts(),
+                          executed=j.executed(), truth=self.truth_dict(), seq=self._next_seq())
+
+    def truth_dict(self) -> dict[str, Any]:
+        t = self.truth
+        return {"map": t.name, "rows": format_rows(t.free),
+                "robots": {str(r): list(c) for r, c in sorted(t.starts.items())},
+                "goals": [list(g) for g in t.goals],
+                "connectivity": self.cfg.connectivity, "cell_size_m": self.cfg.cell_size_m,
+                "vehicle": self.vehicle_dict()}
+
+    def vehicle_dict(self) -> dict[str, Any] | None:
+        """What the simulated autopilot itself saw: independent of what the UAV agent reports."""
+        v = self.vehicle
+        if v is None:
+            return None
+        state = v.landed_state
+        return {"url": self.cfg.mavlink, "armed": v.armed, "landed_state": getattr(state, "name", str(state)),
+                "max_altitude_m": round(v.max_altitude_m, 2), "bad_frames": v.bad_frames,
+                "events": [[round(t, 2), text] for t, text in v.events]}
+
+    def _on_camera(self, q: IncomingQuery) -> None:
+        if self._decode(q, CameraRequest) is None:
+            return
+        # Rendering takes milliseconds to tens of them: off the transport's thread, answered later.
+        try:
+            self._camera_pool.submit(self._render_reply, q)
+        except RuntimeError:  # shutting down
+            q.finish()
+
+    def _render_reply(self, q: IncomingQuery) -> None:
+        try:
+            q.reply(encode(self.capture()))
+        except UavRobotsError as exc:
+            self.warn(f"camera: {exc}")
+            q.finish()
+        except Exception as exc:  # noqa: BLE001 - a camera fault must not kill the world
+            self.warn(f"camera failed: {type(exc).__name__}: {exc}")
+            q.finish()
+
+    def camera_pose(self) -> tuple[float, float, float, float]:
+        """The camera's pose in the grid's NED frame: the vehicle's, lifted by the mount height."""
+        if self.vehicle is None:
+            # No vehicle (tests of the services): a fixed camera over the centre that sees the whole floor.
+            h, w = self.truth.free.shape
+            c, m = self.cfg.cell_size_m, self.camera_model
+            alt = 1.1 * max(w * c * m.fx / m.width, h * c * m.fy / m.height)
+            return (-h * c / 2, w * c / 2, -alt, 0.0)
+        n, e, d, yaw = self.vehicle.pose()
+        return (n, e, d - self.cfg.camera_height_m, yaw)
+
+    def capture(self):
+        from .camera import CameraModel, Scene, encode_frame, render
+
+        if self.camera_model is None:
+            self.camera_model = CameraModel()
+        assert self.desk is not None
+        with self.desk.cv:
+            robots = dict(self.judge.positions)
+        scene = Scene(self.truth.free, robots, list(self.truth.goals))
+        pose = self.camera_pose()
+        image = render(scene, pose, self.camera_model, self.cfg.cell_size_m, seed=self._next_seq())
+        t = self.vehicle.sim_time_s if self.vehicle is not None else time.monotonic() - self._t0
+        return encode_frame(image, pose, self.camera_model, t, seq=self._next_seq())
+
+    def _on_mission_end(self, key: str, payload: bytes) -> None:
+        try:
+            decode(payload, MissionEnd)
+        except ProtocolError as exc:
+            self.warn(f"{key}: {exc}")
+            return
+        if self.mission_ended is None:
+            self.mission_ended = time.monotonic()
+
+    def _on_uav(self, _key: str, alive: bool) -> None:
+        self.uav_alive = alive
+        if alive:
+            self.uav_seen = True
+        elif self.mission_ended is None and self.uav_seen:
+            self._finish("the UAV went away: mission aborted")
+
+
+# ------------------------------------------------------------------ CLI
+def add_world_parser(subparsers: Any) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("world", help="run the simulated world: floor, robots' physics, vehicle, camera",
+                              description="Serve the simulated warehouse (moves, camera, record) on Zenoh "
+                                          "and fly a simulated multicopter over MAVLink.")
+    add_world_arguments(p)
+    p.set_defaults(func=world_command)
+    return p
+
+
+def _camera_options(text: str) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for part in filter(None, text.split(",")):
+        key, sep, value = part.partition("=")
+        try:
+            num = float(value)
+        except ValueError:
+            raise UavRobotsError(f"--camera {text!r}: {part!r} is not name=number") from None
+        if not sep:
+            raise UavRobotsError(f"--camera {text!r}: {part!r} is not name=number")
+        out[key.strip()] = int(num) if key.strip() in ("width", "height") else num
+    return out
+
+
+def add_world_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--map", default="warehouse-small",
+                   help="a .map file, warehouse-small, warehouse-450, 'warehouse:blocks_x=..,blocks_y=..' "
+                        "or 'random:width=..,height=..,density=..'")
+    p.add_argument("--robots", type=int, default=8, help="number of robots (and goals)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the placement of robots and goals")
+    p.add_argument("--scen", default=None, metavar="FILE", help="take starts and goals from a MovingAI .scen")
+    p.add_argument("--fleet", required=True, help="fleet name: keys live under uavr/<fleet>")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                       help=f"Zenoh router to join (default {DEFAULT_ENDPOINT})")
+    where.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                       help="be the Zenoh router yourself, listening here")
+    p.add_argument("--zenoh-config", default=None, metavar="FILE", help="a Zenoh JSON5 config file instead")
+    p.add_argument("--mavlink", default="udpout:127.0.0.1:14540", metavar="URL",
+                   help="the vehicle's MAVLink link (pymavlink URL); 'none' runs without a vehicle")
+    p.add_argument("--time-scale", type=float, default=1.0, metavar="X", help="simulated seconds per second")
+    p.add_argument("--cell-size", type=float, default=1.0, metavar="M", help="grid cell size in metres")
+    p.add_argument("--connectivity", type=int, choices=(4, 8), default=4)
+    p.add_argument("--home", default=None, metavar="LAT,LON,ALT", help="the grid corner's geodetic position")
+    p.add_argument("--camera", default="", metavar="K=V,...",
+                   help="camera options, e.g. width=1280,height=960,hfov_deg=90,noise_std=2,blur_sigma=1")
+    p.add_argument("--move-timeout", type=float, default=MOVE_BATCH_TIMEOUT_S, metavar="S",
+                   help="how long a tick's moves are collected before the missing robots are made to stay")
+
+
+def config_from_args(args: argparse.Namespace) -> WorldConfig:
+    home = HOME
+    if args.home:
+        try:
+            home = tuple(float(v) for v in args.home.split(","))  # type: ignore[assignment]
+        except ValueError:
+            raise UavRobotsError(f"--home {args.home!r} is not LAT,LON,ALT") from None
+        if len(home) != 3:
+            raise UavRobotsError(f"--home {args.home!r} is not LAT,LON,ALT")
+    mav = None if args.mavlink.lower() in ("none", "off", "") else args.mavlink
+    cfg = WorldConfig(fleet=args.fleet, map=args.map, robots=args.robots, seed=args.seed, scen=args.scen,
+                      connectivity=args.connectivity, cell_size_m=args.cell_size, home_lat=home[0],
+                      home_lon=home[1], home_alt_m=home[2], mavlink=mav, time_scale=args.time_scale,
+                      camera=_camera_options(args.camera), connect=args.connect, listen=args.listen,
+                      zenoh_config=args.zenoh_config, move_batch_timeout_s=args.move_timeout)
+    cfg.check()
+    return cfg
+
+
+def world_command(args: argparse.Namespace) -> int:
+    cfg = config_from_args(args)
+    world = World(cfg)
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, lambda *_: world._finish("signal"))
+    try:
+        world.start()
+        print(f"world ready: {world.describe()}", flush=True)
+        reason = world.run()
+    finally:
+        world.close()
+    print(f"world: {reason or 'stopped'}; {world.judge.tick} ticks, {world.judge.collisions} collisions",
+          flush=True)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m sim_world.world", description="Run the simulated world.")
+    add_world_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return world_command(args)
+    except UavRobotsError as exc:
+        print(f"error: {exc}", file=sys.stderr, flush=True)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,286 @@
+"""Camera rendering, survey planning and perception, checked against the ground truth.
+
+Every image is really rendered with OpenCV (and most go through PNG), and
+perception sees only the images and their CameraFrame metadata.
+"""
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from protocol.errors import MapError, MissionError, ProtocolError
+from protocol.messages import CameraFrame, decode, encode
+from sim_world.camera import (CameraModel, Scene, camera_frame, cell_centre_ned, encode_frame, floor_homography,
+                              render)
+from sim_world.maps import place, random_map, resolve_map, warehouse
+from uav_agent.perception import Frame, decode_frame, homography, perceive
+from uav_agent.survey import survey_poses
+
+CELL = 1.0
+
+
+def make_scene(free: np.ndarray, robots: int, seed: int, id_step: int = 37) -> Scene:
+    p = place(free, robots, seed)
+    # Spread ids over the dictionary so that a confusion between near codes would show.
+    return Scene(free, {(i * id_step + 3) % 1000: c for i, c in enumerate(p.starts)}, p.goals)
+
+
+def survey_frames(scene: Scene, model: CameraModel, png: bool = True, **kw) -> list:
+    h, w = scene.free.shape
+    frames = []
+    for i, (n, e, alt) in enumerate(survey_poses(w, h, CELL, model, **kw)):
+        pose = (n, e, -alt, 0.0)
+        image = render(scene, pose, model, CELL, seed=i)
+        frames.append(encode_frame(image, pose, model, time_s=float(i), seq=i) if png
+                      else Frame(image, camera_frame(pose, model, float(i), seq=i)))
+    return frames
+
+
+def assert_matches(world, scene: Scene, only_seen: bool = False) -> None:
+    truth = scene.free
+    if only_seen:
+        assert world.unseen > 0
+        assert np.array_equal(world.free[world.seen], truth[world.seen])
+        robots = {r: c for r, c in scene.robots.items() if world.seen[c[1], c[0]]}
+        goals = sorted(g for g in scene.goals if world.seen[g[1], g[0]])
+        assert robots, "the test view should contain robots"
+    else:
+        assert world.unseen == 0
+        assert np.array_equal(world.free, truth), f"{int((world.free != truth).sum())} cells misclassified"
+        robots, goals = scene.robots, sorted(scene.goals)
+    assert world.robots == robots
+    assert world.goals == goals
+    assert world.unidentified == []
+
+
+# --- geometry conventions -------------------------------------------------
+
+def test_frame_conventions_north_is_up_east_is_right_and_yaw_turns_the_view():
+    model = CameraModel()
+    n, e = cell_centre_ned((10, 7), CELL)
+    assert (n, e) == (-7.5, 10.5)
+
+    def pixel(cell_uv, yaw):
+        H = floor_homography((n, e, -10.0, yaw), model, CELL)
+        return cv2.perspectiveTransform(np.array([[cell_uv]], np.float64), H)[0, 0]
+
+    centre = pixel((10.5, 7.5), 0.0)
+    assert np.allclose(centre, (model.cx, model.cy))
+    east, north = pixel((11.5, 7.5), 0.0), pixel((10.5, 6.5), 0.0)
+    assert east[0] > model.cx + 60 and abs(east[1] - model.cy) < 1e-6      # east is right
+    assert north[1] < model.cy - 60 and abs(north[0] - model.cx) < 1e-6    # north is up
+    east_at_90 = pixel((11.5, 7.5), math.pi / 2)                          # heading east: east is up
+    assert east_at_90[1] < model.cy - 60 and abs(east_at_90[0] - model.cx) < 1e-6
+    assert model.fx == pytest.approx(640.0)                                # 90 deg across 1280 px
+
+
+@given(n=st.floats(-50, 0), e=st.floats(0, 50), alt=st.floats(1, 100), yaw=st.floats(-4, 4),
+       cell=st.floats(0.2, 3.0))
+@settings(max_examples=50, deadline=None)
+def test_perception_derives_the_same_homography_as_the_camera(n, e, alt, yaw, cell):
+    model = CameraModel(width=640, height=480, hfov_deg=70, cx=300.0)
+    meta = camera_frame((n, e, -alt, yaw), model, 0.0)
+    a, b = floor_homography((n, e, -alt, yaw), model, cell), homography(meta, cell)
+    assert np.allclose(a / a[2, 2], b / b[2, 2], rtol=1e-9, atol=1e-9)
+
+
+# --- perception == ground truth ---------------------------------------------
+
+def test_small_warehouse_in_one_frame_through_png_and_the_wire():
+    _, free = resolve_map("warehouse-small")
+    scene = make_scene(free, 8, seed=1)
+    model = CameraModel()
+    frames = survey_frames(scene, model)
+    assert len(frames) == 1
+    wire = decode(encode(frames[0]), CameraFrame)        # exactly what crosses Zenoh
+    world = perceive([wire], free.shape[1], free.shape[0], CELL)
+    assert_matches(world, scene)
+    assert world.warnings == []
+
+
+def test_random_map_with_20_percent_obstacles():
+    free = random_map(40, 30, 0.2, seed=5)
+    scene = make_scene(free, 12, seed=2)
+    world = perceive(survey_frames(scene, CameraModel()), 40, 30, CELL)
+    assert_matches(world, scene)
+
+
+def test_yawed_camera_off_centre_sees_part_of_the_floor_right():
+    _, free = resolve_map("warehouse-small")
+    scene = make_scene(free, 8, seed=3)
+    model = CameraModel()
+    pose = (-6.0, 8.0, -9.0, math.radians(30))           # over the top-left quarter, turned 30 deg
+    image = render(scene, pose, model, CELL)
+    world = perceive([encode_frame(image, pose, model, 0.0)], 24, 18, CELL)
+    assert_matches(world, scene, only_seen=True)
+    # Several yawed, off-centre views together cover everything.
+    poses = [(-5.0, 7.0, -11.0, 0.5), (-5.0, 17.0, -11.0, -0.4), (-13.0, 7.0, -11.0, 2.0), (-13.0, 17.0, -11.0, 3.5)]
+    frames = [encode_frame(render(scene, p, model, CELL), p, model, float(i)) for i, p in enumerate(poses)]
+    assert_matches(perceive(frames, 24, 18, CELL), scene)
+
+
+def test_noise_blur_and_lighting_gradient():
+    _, free = resolve_map("warehouse-small")
+    scene = make_scene(free, 8, seed=4)
+    model = CameraModel(noise_std=10.0, blur_sigma=1.2, lighting=0.35, lighting_angle_deg=120)
+    pose = (-9.0, 12.0, -18.0, math.radians(-20))     # ~35 px per cell
+    image = render(scene, pose, model, CELL, seed=9)
+    assert 5.0 < float(np.std(image.astype(float) - render(scene, pose, CameraModel(), CELL))) < 40.0
+    world = perceive([encode_frame(image, pose, model, 0.0)], 24, 18, CELL)
+    assert world.unseen == 0
+    assert_matches(world, scene)
+
+
+def test_mid_size_warehouse_survey_with_noise():
+    free = warehouse(8, 20)
+    scene = make_scene(free, 50, seed=6)
+    model = CameraModel(noise_std=6.0, blur_sigma=0.7, lighting=0.25)
+    frames = survey_frames(scene, model, min_px_per_cell=25)
+    assert len(frames) > 1
+    assert_matches(perceive(frames, free.shape[1], free.shape[0], CELL), scene)
+
+
+@pytest.mark.timeout(120)
+def test_paper_warehouse_450_with_50_robots_from_a_survey():
+    free = warehouse(33, 112)
+    assert free.shape == (450, 450)
+    scene = make_scene(free, 50, seed=7)
+    frames = survey_frames(scene, CameraModel(), png=False)
+    assert 20 <= len(frames) <= 200
+    assert_matches(perceive(frames, 450, 450, CELL), scene)
+
+
+@given(w=st.integers(4, 14), h=st.integers(4, 12), density=st.floats(0.0, 0.3), robots=st.integers(1, 6),
+       seed=st.integers(0, 10_000), yaw=st.floats(-math.pi, math.pi), ids=st.integers(1, 997))
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+def test_random_small_scenes_are_perceived_exactly(w, h, density, robots, seed, yaw, ids):
+    free = random_map(w, h, density, seed)
+    try:
+        scene = make_scene(free, robots, seed, id_step=ids)
+    except MapError:
+        return   # not enough connected free cells for this many robots and goals
+    model = CameraModel(noise_std=4.0)
+    # Above the centre, high enough that the whole grid is in view at any yaw.
+    alt = math.hypot(w, h) * CELL / (model.height / model.fy) * 1.15
+    pose = (-h * CELL / 2, w * CELL / 2, -alt, yaw)
+    world = perceive([encode_frame(render(scene, pose, model, CELL, seed=seed), pose, model, 0.0)], w, h, CELL)
+    assert_matches(world, scene)
+
+
+# --- merging and ambiguity ----------------------------------------------------
+
+def _frame(scene: Scene, pose, model=CameraModel()) -> CameraFrame:
+    return encode_frame(render(scene, pose, model, CELL), pose, model, 0.0)
+
+
+def test_an_id_seen_at_two_cells_keeps_the_clearer_view():
+    _, free = resolve_map("warehouse-small")
+    scene = make_scene(free, 4, seed=8)
+    rid, cell = next(iter(scene.robots.items()))
+    other = next((x, y) for y in range(18) for x in range(24)
+                 if free[y, x] and (x, y) not in scene.robots.values() and (x, y) not in scene.goals)
+    moved = Scene(free, {**scene.robots, rid: other}, scene.goals)
+    near, far = (-9.0, 12.0, -13.0, 0.0), (-9.0, 12.0, -20.0, 0.0)
+    world = perceive([_frame(moved, far), _frame(scene, near)], 24, 18, CELL)
+    assert world.robots[rid] == cell
+    assert any(f"marker {rid}" in w for w in world.warnings)
+
+
+def test_unknown_ids_are_refused_and_their_cells_reported_unidentified():
+    _, free = resolve_map("warehouse-small")
+    scene = make_scene(free, 5, seed=9)
+    stranger, cell = next(iter(scene.robots.items()))
+    world = perceive([_frame(scene, (-9.0, 12.0, -13.0, 0.0))], 24, 18, CELL,
+                     known_ids=set(scene.robots) - {stranger})
+    assert stranger not in world.robots and len(world.robots) == 4
+    assert world.unidentified == [cell]
+    assert world.free[cell[1], cell[0]]
+
+
+def test_no_frames_means_everything_unseen_and_blocked():
+    world = perceive([], 5, 4, CELL)
+    assert world.unseen == 20 and not world.free.any() and world.robots == {} and world.goals == []
+
+
+# --- survey ---------------------------------------------------------------
+
+@pytest.mark.parametrize("width,height,cell,ppc", [(24, 18, 1.0, 20), (450, 450, 1.0, 20), (97, 31, 0.5, 30),
+                                                   (60, 200, 1.5, 25), (1, 1, 1.0, 20)])
+def test_survey_sees_every_cell_whole_at_the_required_resolution(width, height, cell, ppc):
+    model = CameraModel()
+    poses = survey_poses(width, height, cell, model, min_px_per_cell=ppc)
+    covered = np.zeros((height, width), bool)
+    for n, e, alt in poses:
+        assert model.fx * cell / alt >= ppc - 1e-6
+        H = floor_homography((n, e, -alt, 0.0), model, cell)
+        gx, gy = np.meshgrid(np.arange(width + 1.0), np.arange(height + 1.0))
+        px = cv2.perspectiveTransform(np.stack([gx, gy], -1).reshape(-1, 1, 2), H).reshape(height + 1, width + 1, 2)
+        inside = ((px[..., 0] >= 2) & (px[..., 0] <= model.width - 3) & (px[..., 1] >= 2) & (px[..., 1] <= model.height - 3))
+        covered |= inside[:-1, :-1] & inside[1:, :-1] & inside[:-1, 1:] & inside[1:, 1:]
+    assert covered.all()
+    # Lawn-mower order: each hop moves to a neighbouring footprint, never across the map.
+    hops = [math.dist(a[:2], b[:2]) for a, b in zip(poses, poses[1:])]
+    if hops:
+        assert max(hops) <= 1.01 * max(model.width / model.fx, model.height / model.fy) * poses[0].alt_m
+
+
+def test_survey_uses_one_frame_for_the_small_warehouse_and_dozens_for_450():
+    model = CameraModel()
+    small = survey_poses(24, 18, 1.0, model)
+    assert len(small) == 1 and small[0].north_m == pytest.approx(-9.0) and small[0].east_m == pytest.approx(12.0)
+    assert 50 <= len(survey_poses(450, 450, 1.0, model)) <= 120
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    (dict(width=0), "grid size"), (dict(cell_size_m=0.0), "cell size"),
+    (dict(max_alt_m=2.0), "min_alt_m <= max_alt_m"), (dict(cell_size_m=0.01), "minimum altitude"),
+    (dict(min_px_per_cell=0), "cannot show"),
+])
+def test_survey_rejects_bad_input_in_one_line(kwargs, match):
+    args = dict(width=24, height=18, cell_size_m=1.0, model=CameraModel()) | kwargs
+    with pytest.raises(MissionError, match=match) as exc:
+        survey_poses(**args)
+    assert "\n" not in str(exc.value)
+
+
+# --- bad input -----------------------------------------------------------
+
+def test_bad_scenes_poses_and_frames_raise_one_line_errors():
+    free = np.ones((5, 6), bool)
+    with pytest.raises(MapError, match="robot id 1000 has no marker"):
+        Scene(free, {1000: (1, 1)})
+    with pytest.raises(MapError, match="off the 6x5 grid"):
+        Scene(free, {3: (6, 0)})
+    with pytest.raises(MapError, match="goal"):
+        Scene(free, {}, [(0, -1)])
+    with pytest.raises(MapError, match="bool"):
+        Scene(np.ones((5, 6), np.uint8))
+    with pytest.raises(MissionError, match="not above the floor"):
+        render(Scene(free), (0.0, 0.0, 1.0, 0.0), CameraModel(), CELL)
+    with pytest.raises(MissionError, match="field of view"):
+        CameraModel(hfov_deg=180)
+    with pytest.raises(MissionError, match="lighting"):
+        CameraModel(lighting=1.5)
+    good = _frame(Scene(free, {1: (2, 2)}), (-2.5, 3.0, -6.0, 0.0))
+    with pytest.raises(ProtocolError, match="do not decode"):
+        perceive([CameraFrame(**{**good.__dict__, "png": b"\x89PNG garbage"})], 6, 5, CELL)
+    with pytest.raises(ProtocolError, match="header says 640x960"):
+        decode_frame(CameraFrame(**{**good.__dict__, "width": 640}))
+    with pytest.raises(MissionError, match="not above the floor"):
+        perceive([CameraFrame(**{**good.__dict__, "down_m": 0.0})], 6, 5, CELL)
+    with pytest.raises(MissionError, match="grid size"):
+        perceive([good], 0, 5, CELL)
+
+
+def test_outside_the_grid_is_drawn_in_its_own_colour_and_never_mistaken_for_floor():
+    free = np.ones((4, 4), bool)
+    model = CameraModel(width=320, height=240)
+    image = render(Scene(free, {7: (1, 1)}, [(2, 2)]), (-2.0, 2.0, -8.0, 0.0), model, CELL)
+    assert tuple(image[0, 0]) == (110, 45, 35)
+    world = perceive([Frame(image, camera_frame((-2.0, 2.0, -8.0, 0.0), model, 0.0))], 4, 4, CELL)
+    assert world.free.all() and world.robots == {7: (1, 1)} and world.goals == [(2, 2)]

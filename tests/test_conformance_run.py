@@ -1,0 +1,54 @@
+"""The robot conformance suite, run as a user would: against our robot, and against a broken one."""
+from __future__ import annotations
+
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _suite(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "pytest", "protocol/conformance", "-q", "-p", "no:cacheprovider",
+                           *args], cwd=REPO, capture_output=True, text=True, timeout=timeout)
+
+
+def test_our_robot_conforms():
+    run = _suite()
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
+    assert " passed" in run.stdout and "failed" not in run.stdout
+
+
+def test_our_robot_conforms_with_an_explicit_command_and_id():
+    cmd = f"{shlex.quote(sys.executable)} -m robot_agents.agent --ids {{id}} --fleet {{fleet}} --connect {{endpoint}}"
+    run = _suite("--robot-cmd", cmd, "--robot-id", "42", "-k", "follow_the_plan or malformed")
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
+    assert "2 passed" in run.stdout
+
+
+def test_a_silent_robot_fails_the_suite():
+    silent = f"{shlex.quote(sys.executable)} -c \"import time; time.sleep(60)\""
+    run = _suite("--robot-cmd", silent, "--robot-timeout", "1", "-k", "liveliness or valid_plan")
+    assert run.returncode == 1, run.stdout[-3000:]
+    assert "1 failed" in run.stdout and "1 error" in run.stdout, run.stdout[-3000:]
+    assert "no liveliness token" in run.stdout
+
+
+def test_a_robot_that_acks_nothing_fails_the_suite(tmp_path):
+    # A robot that comes alive but ignores every message: the liveliness test passes, the rest fail.
+    mute = tmp_path / "mute_robot.py"
+    mute.write_text(
+        "import sys, time\n"
+        "from protocol.config import client_config\n"
+        "from protocol.keys import Keys\n"
+        "from protocol.transport import ZenohTransport\n"
+        "rid, fleet, ep = int(sys.argv[1]), sys.argv[2], sys.argv[3]\n"
+        "with ZenohTransport(client_config([ep])) as t:\n"
+        "    tok = t.announce(Keys(fleet).alive_robot(rid))\n"
+        "    time.sleep(60)\n")
+    cmd = f"{shlex.quote(sys.executable)} {shlex.quote(str(mute))} {{id}} {{fleet}} {{endpoint}}"
+    run = _suite("--robot-cmd", cmd, "--robot-timeout", "1", "-k", "liveliness or valid_plan or mission_end")
+    assert run.returncode == 1, run.stdout[-3000:]
+    assert "2 failed, 1 passed" in run.stdout, run.stdout[-3000:]
+    assert "no PlanAck" in run.stdout

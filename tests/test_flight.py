@@ -1,0 +1,103 @@
+"""MAVSDK 4.x (through `Flight`) flying the simulated autopilot over real UDP on loopback."""
+from __future__ import annotations
+
+import math
+import socket
+import time
+
+import pytest
+
+from protocol.errors import MissionError
+from sim_world.vehicle import LandedState, Vehicle, VehicleConfig
+from uav_agent.flight import Flight
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def link():
+    """A vehicle sending to a port where a Flight listens, like PX4 SITL and its offboard API."""
+    port = free_udp_port()
+    vehicle = Vehicle(VehicleConfig(url=f"udpout:127.0.0.1:{port}", time_scale=20.0)).start()
+    flight = Flight(f"udpin://127.0.0.1:{port}")
+    yield vehicle, flight
+    flight.close()
+    vehicle.stop()
+
+
+def test_connect_arm_takeoff_goto_land(link):
+    vehicle, flight = link
+    flight.connect(timeout_s=10)
+    cfg = vehicle.config
+    lat, lon, alt = flight.home()
+    assert (lat, lon) == pytest.approx((cfg.home_lat, cfg.home_lon), abs=1e-7)
+    assert alt == pytest.approx(cfg.home_alt_m, abs=0.01)
+    assert not flight.armed and flight.position_ned() == pytest.approx((0.0, 0.0, 0.0), abs=0.02)
+
+    flight.arm()
+    assert flight.armed and vehicle.armed
+
+    flight.takeoff(8.0, timeout_s=15)
+    assert flight.in_air and vehicle.pose()[2] == pytest.approx(-8.0, abs=0.3)
+
+    reached = flight.goto(-30.0, 25.0, 12.0, yaw_rad=0.5, timeout_s=15)
+    north, east, down, yaw = vehicle.pose()
+    assert (north, east, down) == pytest.approx((-30.0, 25.0, -12.0), abs=0.5)
+    assert reached == pytest.approx((north, east, down), abs=0.05)  # both sides convert the same way
+    time.sleep(0.3)  # let the yaw settle and reach the ground station
+    assert flight.pose()[3] == pytest.approx(0.5, abs=0.01)
+    assert flight.flight_mode == "HOLD"
+    flight.goto(-30.0, 20.0, 12.0, yaw_rad=None, timeout_s=15)  # keep the heading
+    time.sleep(0.1)
+    assert vehicle.pose()[3] == pytest.approx(0.5, abs=1e-3)
+
+    flight.land(timeout_s=15)
+    assert not flight.armed and not vehicle.armed
+    assert vehicle.landed_state == LandedState.ON_GROUND and vehicle.pose()[2] == 0.0
+    assert vehicle.bad_frames == 0  # MAVSDK sends nothing the vehicle cannot parse
+
+
+def test_connect_times_out_fast_without_a_vehicle():
+    url = f"udpin://127.0.0.1:{free_udp_port()}"
+    started = time.monotonic()
+    with Flight(url) as flight, pytest.raises(MissionError, match=f"no autopilot at {url} within 1 s"):
+        flight.connect(timeout_s=1.0)
+    assert time.monotonic() - started < 3.0
+
+
+def test_bad_url_and_bad_arguments_are_one_line_errors(link):
+    with pytest.raises(MissionError, match="cannot open MAVLink connection"):
+        Flight("carrier-pigeon://nowhere").connect(timeout_s=1)
+    _, flight = link
+    with pytest.raises(MissionError, match="not connected"):
+        flight.arm()
+    with pytest.raises(MissionError, match="timeout"):
+        flight.connect(timeout_s=-1)
+    flight.connect(timeout_s=10)
+    with pytest.raises(MissionError, match="takeoff altitude"):
+        flight.takeoff(float("nan"))
+    with pytest.raises(MissionError, match="finite"):
+        flight.goto(0.0, float("inf"), 10.0)
+
+
+def test_refused_command_is_a_mission_error(link):
+    _, flight = link
+    flight.connect(timeout_s=10)
+    with pytest.raises(MissionError, match="refused to go to"):
+        flight.goto(5.0, 5.0, 10.0, timeout_s=5)  # disarmed: the vehicle denies DO_REPOSITION
+
+
+def test_lost_link_ends_a_wait_early(link):
+    vehicle, flight = link
+    flight.connect(timeout_s=10)
+    flight.takeoff(5.0, timeout_s=15)
+    vehicle.stop()
+    started = time.monotonic()
+    with pytest.raises(MissionError, match="did not answer|lost the autopilot link"):
+        flight.goto(400.0, 400.0, 5.0, timeout_s=15)
+    assert time.monotonic() - started < 10.0
+    assert not math.isnan(flight.position_ned()[0])

@@ -1,0 +1,266 @@
+"""The world process: move batches, info, record, camera, lifecycle; in memory and over real Zenoh."""
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from protocol.config import client_config
+from protocol.conformance import FakeUav, Hub, free_endpoint, stop_process
+from protocol.keys import Keys
+from protocol.messages import (CameraFrame, CameraRequest, MissionEnd, MoveRequest, MoveResult, Record, RecordRequest,
+                               WorldInfo, WorldInfoRequest, decode, encode)
+from protocol.transport import MemoryBus, MemoryTransport, ZenohTransport
+from sim_world.world import World, WorldConfig
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def open_map(tmp_path: Path, starts, goals, w=8, h=6) -> tuple[str, str]:
+    """An obstacle-free map with a scenario, so tests choose where robots stand."""
+    m = tmp_path / "open.map"
+    m.write_text(f"type octile\nheight {h}\nwidth {w}\nmap\n" + "\n".join(["." * w] * h) + "\n")
+    s = tmp_path / "open.scen"
+    s.write_text("version 1\n" + "".join(f"0\topen.map\t{w}\t{h}\t{a[0]}\t{a[1]}\t{b[0]}\t{b[1]}\t0\n"
+                                         for a, b in zip(starts, goals)))
+    return str(m), str(s)
+
+
+@pytest.fixture
+def mem_world(tmp_path):
+    m, s = open_map(tmp_path, [(0, 0), (1, 0), (5, 5)], [(7, 0), (7, 1), (5, 4)])
+    bus = MemoryBus()
+    world = World(WorldConfig(fleet="t", map=m, scen=s, robots=3, mavlink=None, move_batch_timeout_s=0.4),
+                  MemoryTransport(bus))
+    world.start()
+    client = MemoryTransport(bus)
+    yield world, client
+    client.close()
+    world.close()
+
+
+def ask(client, world, robot, tick, frm, to, timeout=3.0):
+    return client.request_start(world.keys.move, encode(MoveRequest(robot=robot, tick=tick, frm=frm, to=to)), timeout)
+
+
+def result(pending) -> MoveResult:
+    (raw,) = pending.wait()
+    return decode(raw, MoveResult)
+
+
+def test_info_and_record_describe_the_site(mem_world):
+    world, client = mem_world
+    info = decode(client.request(world.keys.world_info, encode(WorldInfoRequest()), 1)[0], WorldInfo)
+    assert (info.width, info.height, info.cell_size_m) == (8, 6, 1.0)
+    assert (info.home_lat, info.home_lon) == (47.397742, 8.545594)
+    rec = decode(client.request(world.keys.record, encode(RecordRequest()), 1)[0], Record)
+    assert rec.ticks == 0 and rec.collisions == 0 and rec.refused == []
+    assert rec.truth["robots"] == {"0": [0, 0], "1": [1, 0], "2": [5, 5]}
+    assert rec.truth["goals"] == [[7, 0], [7, 1], [5, 4]] and rec.truth["rows"][0] == "." * 8
+    assert rec.executed == {"0": [(0, 0)], "1": [(1, 0)], "2": [(5, 5)]}
+
+
+def test_a_tick_is_resolved_once_every_robot_asked(mem_world):
+    world, client = mem_world
+    # Robot 1 moves on and robot 0 follows it: legal only because the moves are judged together.
+    p0 = ask(client, world, 0, 1, (0, 0), (1, 0))
+    p1 = ask(client, world, 1, 1, (1, 0), (2, 0))
+    time.sleep(0.1)
+    assert world.judge.tick == 0, "resolved before every robot asked"
+    p2 = ask(client, world, 2, 1, (5, 5), (5, 4))
+    r0, r1, r2 = result(p0), result(p1), result(p2)
+    assert r0.accepted and r0.cell == (1, 0) and r1.cell == (2, 0) and r2.cell == (5, 4)
+    assert world.judge.tick == 1 and world.judge.refused == []
+
+
+def test_missing_robots_stay_after_the_batch_timeout(mem_world):
+    world, client = mem_world
+    t0 = time.monotonic()
+    r = result(ask(client, world, 0, 1, (0, 0), (0, 1)))
+    assert r.accepted and time.monotonic() - t0 >= 0.35
+    rec = world.record()
+    assert rec.collisions == 0 and rec.executed["1"] == [(1, 0), (1, 0)]
+    assert {e["robot"] for e in rec.refused} == {1, 2}
+    assert all(not e["collision"] and "no move request" in e["reason"] for e in rec.refused)
+
+
+def test_collisions_late_ticks_unknown_robots_and_resends(mem_world):
+    world, client = mem_world
+    # Head-on swap between 0 and 1: both refused and counted; robot 2 walks into... nothing, accepted.
+    ps = [ask(client, world, 0, 1, (0, 0), (1, 0)), ask(client, world, 1, 1, (1, 0), (0, 0)),
+          ask(client, world, 2, 1, (5, 5), (5, 4))]
+    r0, r1, r2 = (result(p) for p in ps)
+    assert not r0.accepted and not r1.accepted and "swap" in r0.reason and r0.cell == (0, 0)
+    assert r2.accepted
+    # The same request again (a lost reply): the same answer, nothing changes.
+    again = result(ask(client, world, 2, 1, (5, 5), (5, 4)))
+    assert again.accepted and again.cell == (5, 4) and world.judge.tick == 1
+    late = result(ask(client, world, 0, 1, (0, 0), (0, 1)))
+    assert not late.accepted and "over" in late.reason
+    stranger = result(ask(client, world, 9, 2, (3, 3), (3, 4)))
+    assert not stranger.accepted and "unknown robot 9" in stranger.reason
+    rec = world.record()
+    assert rec.collisions == 2
+    assert sorted(e["collision"] for e in rec.refused) == [False, False, True, True]
+
+
+def test_a_later_tick_closes_the_pending_one(mem_world):
+    world, client = mem_world
+    p = ask(client, world, 0, 1, (0, 0), (0, 1))
+    time.sleep(0.05)
+    q = ask(client, world, 1, 2, (1, 0), (2, 0))  # robot 1 missed tick 1: the fleet has moved on
+    assert result(p).accepted
+    time.sleep(0.05)
+    assert world.judge.tick == 1
+    rq = result(q)  # tick 2 completes at the batch timeout
+    assert rq.accepted and rq.cell == (2, 0) and world.judge.tick == 2
+    reasons = [e["reason"] for e in world.record().refused]
+    assert any("before tick 2 began" in r for r in reasons)
+
+
+def test_garbage_gets_no_reply_and_changes_nothing(mem_world, capsys):
+    world, client = mem_world
+    k = world.keys
+    for key in (k.move, k.world_info, k.record, k.camera):
+        assert client.request(key, b"\x00\xffnot a message", 0.3) == []
+    wrong_version = encode(MoveRequest(robot=0, tick=1, frm=(0, 0), to=(0, 1))).replace(b'"v":1', b'"v":7')
+    assert client.request(k.move, wrong_version, 0.3) == []
+    assert world.judge.tick == 0 and world.judge.positions[0] == (0, 0)
+    err = capsys.readouterr().err
+    assert "warning: world:" in err and "Traceback" not in err
+    assert result(ask(client, world, 0, 1, (0, 0), (0, 1))).accepted
+
+
+def test_camera_renders_the_current_positions(mem_world):
+    world, client = mem_world
+    for r, (frm, to) in {0: ((0, 0), (0, 1)), 1: ((1, 0), (2, 0)), 2: ((5, 5), (5, 4))}.items():
+        ask(client, world, r, 1, frm, to)
+    assert world.judge.tick == 1
+    (raw,) = client.request(world.keys.camera, encode(CameraRequest()), 10)
+    frame = decode(raw, CameraFrame)
+    image = cv2.imdecode(np.frombuffer(frame.png, np.uint8), cv2.IMREAD_COLOR)
+    assert image.shape == (frame.height, frame.width, 3) and frame.down_m < 0
+    # Project robot 0's new cell centre through the published pinhole model: its marker is there.
+    det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_1000))
+    corners, ids, _ = det.detectMarkers(image)
+    assert ids is not None and sorted(ids.ravel().tolist()) == [0, 1, 2]
+    centre = corners[list(ids.ravel()).index(0)][0].mean(axis=0)
+    north, east = -(1 + 0.5), 0 + 0.5
+    depth = -frame.down_m
+    u = frame.cx + frame.fx * (east - frame.east_m) / depth
+    v = frame.cy - frame.fy * (north - frame.north_m) / depth
+    assert abs(centre[0] - u) < 3 and abs(centre[1] - v) < 3
+
+
+def test_bad_config_is_one_line_error(tmp_path):
+    run = subprocess.run([sys.executable, "-m", "sim_world.world", "--fleet", "f", "--map", "nosuch.map",
+                          "--mavlink", "none"], cwd=REPO, capture_output=True, text=True, timeout=30)
+    assert run.returncode == 2 and run.stderr.strip().startswith("error:") and len(run.stderr.strip().splitlines()) == 1
+    run = subprocess.run([sys.executable, "-m", "sim_world.world", "--fleet", "bad fleet!", "--mavlink", "none"],
+                         cwd=REPO, capture_output=True, text=True, timeout=30)
+    assert run.returncode == 2 and "fleet name" in run.stderr
+
+
+# ------------------------------------------------------------------ over Zenoh
+def start_world(hub: Hub, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "sim_world.world", "--fleet", hub.fleet, "--connect", hub.endpoint,
+                             "--robots", "3", *extra], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)
+
+
+def wait_alive(hub: Hub, key: str, timeout: float = 15.0) -> bool:
+    seen = threading.Event()
+    h = hub.transport.watch_alive(key, lambda _k, alive: alive and seen.set())
+    try:
+        return seen.wait(timeout)
+    finally:
+        h.close()
+
+
+def test_world_process_serves_and_leaves_after_the_uav():
+    with Hub() as hub:
+        uav = FakeUav(hub.transport, hub.keys)
+        proc = start_world(hub, "--mavlink", "none")
+        try:
+            assert wait_alive(hub, hub.keys.alive_world), proc.stderr.read() if proc.poll() is not None else ""
+            assert proc.stdout.readline().startswith("world ready: fleet " + hub.fleet)
+            raw = hub.transport.request(hub.keys.world_info, encode(WorldInfoRequest()), 5)
+            assert decode(raw[0], WorldInfo).width == 24
+            uav.end(True)
+            time.sleep(1.5)
+            assert proc.poll() is None, "the world left while the UAV could still want the record"
+            rec = decode(hub.transport.request(hub.keys.record, encode(RecordRequest()), 5)[0], Record)
+            assert len(rec.truth["robots"]) == 3
+            uav.leave()
+            assert proc.wait(5) == 0
+            assert "mission ended" in proc.stdout.read()
+        finally:
+            stop_process(proc)
+            uav.close()
+
+
+def test_world_process_stops_on_sigterm_and_on_a_lone_mission_end():
+    with Hub() as hub:
+        proc = start_world(hub, "--mavlink", "none")
+        try:
+            assert wait_alive(hub, hub.keys.alive_world)
+            proc.send_signal(signal.SIGTERM)
+            assert proc.wait(5) == 0
+        finally:
+            stop_process(proc)
+        proc = start_world(hub, "--mavlink", "none")
+        try:
+            assert wait_alive(hub, hub.keys.alive_world)
+            hub.transport.put(hub.keys.mission_end, b"garbage first")
+            hub.transport.put(hub.keys.mission_end, encode(MissionEnd(completed=False, reason="test")))
+            assert proc.wait(5) == 0  # no UAV was ever seen: a short grace, then gone
+            assert "warning: world:" in proc.stderr.read()
+        finally:
+            stop_process(proc)
+
+
+def test_world_with_its_vehicle_over_zenoh():
+    """The camera follows the vehicle: on the ground the lens sits at its mount height."""
+    with Hub() as hub:
+        mav = free_endpoint().replace("tcp/", "udpout:")
+        proc = start_world(hub, "--mavlink", mav, "--camera", "width=320,height=240")
+        try:
+            assert wait_alive(hub, hub.keys.alive_world), proc.stderr.read() if proc.poll() is not None else ""
+            raw = hub.transport.request(hub.keys.camera, encode(CameraRequest()), 10)
+            frame = decode(raw[0], CameraFrame)
+            assert (frame.width, frame.height) == (320, 240)
+            assert frame.north_m == pytest.approx(0, abs=1e-6) and frame.down_m == pytest.approx(-0.3, abs=1e-6)
+            rec = decode(hub.transport.request(hub.keys.record, encode(RecordRequest()), 5)[0], Record)
+            assert rec.truth["vehicle"]["armed"] is False and rec.truth["vehicle"]["url"] == mav
+            proc.send_signal(signal.SIGTERM)
+            assert proc.wait(5) == 0
+        finally:
+            stop_process(proc)
+
+
+def test_world_in_process_on_zenoh_batches_two_clients(tmp_path):
+    m, s = open_map(tmp_path, [(0, 0), (2, 0)], [(0, 5), (2, 5)])
+    with Hub() as hub:
+        world = World(WorldConfig(fleet=hub.fleet, map=m, scen=s, robots=2, mavlink=None, connect=[hub.endpoint]))
+        world.start()
+        a = ZenohTransport(client_config([hub.endpoint]), "a")
+        b = ZenohTransport(client_config([hub.endpoint]), "b")
+        try:
+            assert wait_alive(hub, hub.keys.alive_world)
+            k = Keys(hub.fleet)
+            pa = a.request_start(k.move, encode(MoveRequest(robot=0, tick=1, frm=(0, 0), to=(1, 0))), 5)
+            pb = b.request_start(k.move, encode(MoveRequest(robot=1, tick=1, frm=(2, 0), to=(1, 0))), 5)
+            ra, rb = decode(pa.wait()[0], MoveResult), decode(pb.wait()[0], MoveResult)
+            assert not ra.accepted and not rb.accepted and ra.cell == (0, 0) and rb.cell == (2, 0)
+            assert world.judge.collisions == 2
+        finally:
+            a.close()
+            b.close()
+            world.close()

@@ -1,0 +1,278 @@
+"""The UAV's MAVLink link to its autopilot, through MAVSDK 4.x (the native binding).
+
+`Flight` is synchronous on purpose: the mission is a sequence of blocking steps
+(connect, arm, take off, go to a pose, land), each with a timeout that ends in a
+one-line `MissionError`. MAVSDK 4.x offers blocking calls on its own threads, so
+no asyncio loop is needed: telemetry getters return the latest received values,
+actions wait for the vehicle's COMMAND_ACK (MAVSDK retries, then gives up after a
+couple of seconds).
+
+Frame: local NED with its origin at the vehicle's home position as read once at
+connect (for the simulated vehicle, the warehouse grid's top-left corner), converted
+with protocol/geo.py exactly as the vehicle does. The origin is not updated if the
+autopilot later moves its home (PX4 does on arming): the mission's frame must stay put.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from typing import Callable
+
+from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk
+from mavsdk.logging import LogLevel, log_subscribe
+from mavsdk.plugins.action import Action, ActionError, ActionResult
+from mavsdk.plugins.telemetry import LandedState, Telemetry
+
+from protocol.errors import MissionError
+from protocol.geo import check_home, geo_to_ned, ned_to_geo
+
+DEFAULT_URL = "udpin://0.0.0.0:14540"
+POLL_S = 0.02
+
+_log = logging.getLogger("uav_agent.flight")
+_mavsdk_log = logging.getLogger("mavsdk")
+_log_installed = threading.Lock()
+_log_routed = False
+
+
+def _route_mavsdk_logs() -> None:
+    """Send MAVSDK's own log lines (printed to stdout by default) to Python logging, once."""
+    global _log_routed
+    with _log_installed:
+        if _log_routed:
+            return
+        levels = {LogLevel.DEBUG: logging.DEBUG, LogLevel.INFO: logging.INFO,
+                  LogLevel.WARN: logging.WARNING, LogLevel.ERROR: logging.ERROR}
+
+        def forward(level, message, file, line):
+            _mavsdk_log.log(levels.get(level, logging.INFO), "%s", message)
+            return True  # suppress MAVSDK's default printing
+
+        log_subscribe(forward)
+        _log_routed = True
+
+
+class Flight:
+    """Fly one autopilot over MAVLink: `connect`, `arm`, `takeoff`, `goto`, `land`.
+
+    Usable as a context manager; `close()` releases MAVSDK (its sockets and threads).
+    """
+
+    def __init__(self, url: str = DEFAULT_URL):
+        self.url = url
+        self._config: Configuration | None = None
+        self._mavsdk: Mavsdk | None = None
+        self._system = None
+        self._action: Action | None = None
+        self._telemetry: Telemetry | None = None
+        self._home: tuple[float, float, float] | None = None
+
+    # --- lifecycle ---------------------------------------------------------------------
+
+    def connect(self, timeout_s: float = 10.0) -> "Flight":
+        """Open the link, wait for an autopilot, its home and its position."""
+        if self._system is not None:
+            return self
+        _check_timeout(timeout_s)
+        _route_mavsdk_logs()
+        deadline = time.monotonic() + timeout_s
+        self._config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
+        self._mavsdk = Mavsdk(self._config)
+        try:
+            result = self._mavsdk.add_any_connection(self.url)
+        except Exception as exc:  # ctypes refuses e.g. a URL that is not text
+            self.close()
+            raise MissionError(f"cannot open MAVLink connection {self.url!r}: {exc}") from None
+        if result != ConnectionResult.SUCCESS:
+            self.close()
+            raise MissionError(f"cannot open MAVLink connection {self.url!r}: {result.name}")
+        system = self._mavsdk.first_autopilot(max(0.0, deadline - time.monotonic()))
+        if system is None:
+            self.close()
+            raise MissionError(f"no autopilot at {self.url} within {timeout_s:g} s")
+        self._system = system
+        self._action = Action(system)
+        self._telemetry = Telemetry(system)
+
+        def home_and_position():
+            home, pos = self._telemetry.home(), self._telemetry.position()
+            return _finite(home.latitude_deg, home.longitude_deg, home.absolute_altitude_m,
+                           pos.latitude_deg, pos.longitude_deg, pos.absolute_altitude_m)
+
+        try:
+            self._wait(home_and_position, deadline,
+                       lambda: f"autopilot at {self.url} sent no home position and position within {timeout_s:g} s")
+            home = self._telemetry.home()
+            check_home(home.latitude_deg, home.longitude_deg)
+        except MissionError:
+            self.close()
+            raise
+        self._home = (home.latitude_deg, home.longitude_deg, home.absolute_altitude_m)
+        _log.info("connected to autopilot %d at %s, home %.7f %.7f %.1f m", system.get_system_id(), self.url,
+                  *self._home)
+        return self
+
+    def close(self) -> None:
+        """Release MAVSDK. Idempotent; the Flight cannot be used afterwards."""
+        mavsdk, self._mavsdk = self._mavsdk, None
+        self._action = self._telemetry = self._system = None
+        if mavsdk is not None:
+            mavsdk.destroy()
+        config, self._config = self._config, None
+        if config is not None:
+            config.destroy()
+
+    def __enter__(self) -> "Flight":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # --- commands ----------------------------------------------------------------------
+
+    def arm(self, timeout_s: float = 10.0) -> None:
+        """Arm and wait until the heartbeat says armed."""
+        _check_timeout(timeout_s)
+        deadline = time.monotonic() + timeout_s
+        action, telemetry = self._link()
+        if telemetry.armed():
+            return
+        self._act("arm", action.arm)
+        self._wait(telemetry.armed, deadline, lambda: f"vehicle did not report armed within {timeout_s:g} s")
+
+    def takeoff(self, alt_m: float, timeout_s: float = 60.0) -> None:
+        """Arm if needed, take off to `alt_m` above home, wait until in the air near it."""
+        _check_timeout(timeout_s)
+        if not (math.isfinite(alt_m) and alt_m > 0):
+            raise MissionError(f"takeoff altitude must be a positive number of metres, got {alt_m}")
+        deadline = time.monotonic() + timeout_s
+        action, telemetry = self._link()
+        self._act(f"set takeoff altitude {alt_m:g} m", lambda: action.set_takeoff_altitude(float(alt_m)))
+        if not telemetry.armed():
+            self.arm(max(0.1, deadline - time.monotonic()))
+        self._act("take off", action.takeoff)
+        tolerance = max(0.3, 0.03 * alt_m)
+
+        def up():
+            return telemetry.in_air() and abs(self._altitude() - alt_m) <= tolerance
+
+        self._wait(up, deadline,
+                   lambda: f"vehicle did not reach {alt_m:g} m within {timeout_s:g} s (at {self._altitude():.1f} m)")
+
+    def goto(self, north_m: float, east_m: float, alt_m: float, yaw_rad: float | None = 0.0,
+             timeout_s: float = 120.0, tolerance_m: float = 0.5) -> tuple[float, float, float]:
+        """Fly to (north, east) at `alt_m` above home, facing `yaw_rad` (None keeps the heading);
+        wait until within `tolerance_m` horizontally and vertically. Returns the reached
+        (north, east, down)."""
+        _check_timeout(timeout_s)
+        yaw_deg = math.nan if yaw_rad is None else math.degrees(yaw_rad)  # NaN: MAVLink's "keep current"
+        if not all(math.isfinite(v) for v in (north_m, east_m, alt_m, tolerance_m)) or tolerance_m <= 0 or (
+                yaw_rad is not None and not math.isfinite(yaw_rad)):
+            raise MissionError(f"goto target ({north_m}, {east_m}, {alt_m} m, yaw {yaw_rad}, tolerance {tolerance_m})"
+                               " must be finite numbers with a positive tolerance")
+        deadline = time.monotonic() + timeout_s
+        action, _ = self._link()
+        home_lat, home_lon, home_alt = self._home
+        lat, lon = ned_to_geo(north_m, east_m, home_lat, home_lon)
+        self._act(f"go to N {north_m:.1f} E {east_m:.1f} at {alt_m:.1f} m",
+                  lambda: action.goto_location(lat, lon, home_alt + alt_m, yaw_deg))
+
+        def error() -> tuple[float, float]:
+            n, e, d = self.position_ned()
+            return math.hypot(n - north_m, e - east_m), abs(-d - alt_m)
+
+        def there():
+            horizontal, vertical = error()
+            return horizontal <= tolerance_m and vertical <= tolerance_m
+
+        self._wait(there, deadline, lambda: (
+            f"vehicle did not reach N {north_m:.1f} E {east_m:.1f} at {alt_m:.1f} m within {timeout_s:g} s"
+            f" (still {error()[0]:.1f} m away horizontally, {error()[1]:.1f} m vertically)"))
+        return self.position_ned()
+
+    def land(self, timeout_s: float = 120.0) -> None:
+        """Land where it is; wait until on the ground and disarmed."""
+        _check_timeout(timeout_s)
+        deadline = time.monotonic() + timeout_s
+        action, telemetry = self._link()
+        self._act("land", action.land)
+
+        def down():
+            return telemetry.landed_state() == LandedState.ON_GROUND and not telemetry.armed()
+
+        self._wait(down, deadline, lambda: (f"vehicle did not land and disarm within {timeout_s:g} s"
+                                            f" (at {self._altitude():.1f} m, {telemetry.landed_state().name})"))
+
+    # --- state -------------------------------------------------------------------------
+
+    def home(self) -> tuple[float, float, float]:
+        """(latitude, longitude, altitude AMSL m) of the frame's origin, as read at connect."""
+        self._link()
+        return self._home
+
+    def position_ned(self) -> tuple[float, float, float]:
+        """(north, east, down) metres from home."""
+        _, telemetry = self._link()
+        pos = telemetry.position()
+        home_lat, home_lon, home_alt = self._home
+        north, east = geo_to_ned(pos.latitude_deg, pos.longitude_deg, home_lat, home_lon)
+        return north, east, home_alt - pos.absolute_altitude_m
+
+    def pose(self) -> tuple[float, float, float, float]:
+        """(north, east, down, yaw_rad), the same tuple `sim_world.vehicle.Vehicle.pose` gives."""
+        _, telemetry = self._link()
+        yaw = math.radians(telemetry.attitude_euler().yaw_deg)
+        return (*self.position_ned(), yaw if math.isfinite(yaw) else 0.0)
+
+    @property
+    def armed(self) -> bool:
+        return self._link()[1].armed()
+
+    @property
+    def in_air(self) -> bool:
+        return self._link()[1].in_air()
+
+    @property
+    def flight_mode(self) -> str:
+        """The autopilot's mode as MAVSDK names it: HOLD, TAKEOFF, LAND, OFFBOARD, ..."""
+        return self._link()[1].flight_mode().name
+
+    # --- helpers -----------------------------------------------------------------------
+
+    def _link(self) -> tuple[Action, Telemetry]:
+        if self._action is None or self._telemetry is None:
+            raise MissionError(f"not connected to an autopilot at {self.url} (call connect() first)")
+        return self._action, self._telemetry
+
+    def _altitude(self) -> float:
+        return self._telemetry.position().relative_altitude_m
+
+    def _act(self, what: str, call: Callable[[], object]) -> None:
+        try:
+            call()
+        except ActionError as exc:
+            if exc.result in (ActionResult.TIMEOUT, ActionResult.NO_SYSTEM, ActionResult.CONNECTION_ERROR):
+                raise MissionError(f"vehicle did not answer the request to {what} ({exc.result.name})") from None
+            raise MissionError(f"vehicle refused to {what}: {exc.result.name}") from None
+
+    def _wait(self, done: Callable[[], bool], deadline: float, failure: Callable[[], str]) -> None:
+        """Poll `done` until true; MissionError(failure()) at the deadline or on link loss."""
+        while True:
+            if done():
+                return
+            if self._system is not None and not self._system.is_connected():
+                raise MissionError(f"lost the autopilot link at {self.url}")
+            if time.monotonic() >= deadline:
+                raise MissionError(failure())
+            time.sleep(POLL_S)
+
+
+def _check_timeout(timeout_s: float) -> None:
+    if not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s) and timeout_s > 0):
+        raise MissionError(f"timeout must be a positive number of seconds, got {timeout_s!r}")
+
+
+def _finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)

@@ -1,0 +1,246 @@
+"""PIBT, Priority Inheritance with Backtracking (Okumura et al., IJCAI 2019 / AIJ 2022).
+
+One step at a time, robots in priority order pick their next cell by distance
+to goal; a robot that wants an occupied cell lends its priority to the
+occupant, which must then move away first (recursively), or the move is
+dropped (backtracking). Vertex and swap conflicts (and crossing diagonals in
+8-connectivity) are excluded by construction. A robot's priority grows while
+it is away from its goal and falls back to its fractional start value once
+there. PIBT alone can cycle forever (livelock), so `pibt` gives up with a
+PlanningError after a step cap or the time limit; `lacam.py` uses the step
+kernel as its configuration generator and is complete.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from numba import njit
+
+from protocol.errors import PlanningError
+
+from .distances import Instance, compile_problem
+from .prioritized import kernel_args, now
+from .types import Limits, Path, Problem
+
+
+@njit(cache=True)
+def rand_next(state: np.ndarray) -> int:
+    """xorshift64: a small reproducible generator for tie-breaking inside kernels."""
+    x = state[0]
+    x ^= x << np.uint64(13)
+    x ^= x >> np.uint64(7)
+    x ^= x << np.uint64(17)
+    state[0] = x
+    return np.int64(x >> np.uint64(40))
+
+
+@njit(cache=True)
+def _candidates(nbr, drow, v: int, occ_now, out: np.ndarray, rng: np.ndarray) -> int:
+    """Neighbours of v and v itself, nearest to the goal first; ties prefer free cells, then random."""
+    k = nbr.shape[1]
+    keys = np.empty(k + 1, dtype=np.int64)
+    m = 0
+    for j in range(k + 1):
+        u = v if j == k else nbr[v, j]
+        if u < 0:
+            continue
+        key = (np.int64(drow[u]) << np.int64(26)) + (np.int64(1 << 25) if occ_now[u] >= 0 else 0) \
+            + (rand_next(rng) & np.int64((1 << 24) - 1))
+        # insertion sort: at most 9 entries
+        i = m
+        while i > 0 and keys[i - 1] > key:
+            keys[i] = keys[i - 1]
+            out[i] = out[i - 1]
+            i -= 1
+        keys[i] = key
+        out[i] = u
+        m += 1
+    return m
+
+
+@njit(cache=True)
+def _crosses(u: int, v: int, q_to, occ_now, xs, ys, index, width: int) -> bool:
+    """Whether the diagonal move u -> v crosses an already chosen diagonal move."""
+    if xs[u] == xs[v] or ys[u] == ys[v]:
+        return False
+    p = index[ys[u] * width + xs[v]]
+    q = index[ys[v] * width + xs[u]]
+    j = occ_now[p]
+    if j >= 0 and q_to[j] == q:
+        return True
+    j = occ_now[q]
+    if j >= 0 and q_to[j] == p:
+        return True
+    return False
+
+
+@njit(cache=True)
+def _pibt(root: int, nbr, dist, rows, q_from, q_to, occ_now, occ_nxt, xs, ys, index, width: int,
+          diagonal: bool, st_agent, st_pos, st_nc, st_cand, rng) -> bool:
+    """PIBT's recursive call for `root`, written with an explicit stack (recursion depth can reach n)."""
+    d = 0
+    st_agent[0] = root
+    st_pos[0] = 0
+    st_nc[0] = _candidates(nbr, dist[rows[root]], q_from[root], occ_now, st_cand[0], rng)
+    d = 1
+    result = -1          # -1: nothing returned yet, 0: child failed, 1: child succeeded
+    while d > 0:
+        top = d - 1
+        i = st_agent[top]
+        if result == 1:
+            d -= 1
+            continue
+        if result == 0:
+            st_pos[top] += 1
+        result = -1
+        pushed = False
+        while st_pos[top] < st_nc[top]:
+            v = st_cand[top, st_pos[top]]
+            if occ_nxt[v] >= 0:
+                st_pos[top] += 1
+                continue
+            j = occ_now[v]
+            if j >= 0 and j != i and q_to[j] == q_from[i]:
+                st_pos[top] += 1
+                continue  # would swap with j
+            if diagonal and _crosses(q_from[i], v, q_to, occ_now, xs, ys, index, width):
+                st_pos[top] += 1
+                continue
+            q_to[i] = v
+            occ_nxt[v] = i
+            if j >= 0 and j != i and q_to[j] < 0:
+                st_agent[d] = j
+                st_pos[d] = 0
+                st_nc[d] = _candidates(nbr, dist[rows[j]], q_from[j], occ_now, st_cand[d], rng)
+                d += 1
+                pushed = True
+            break
+        if pushed:
+            continue
+        d -= 1
+        if st_pos[top] < st_nc[top]:
+            result = 1
+        else:
+            q_to[i] = q_from[i]
+            occ_nxt[q_from[i]] = i
+            result = 0
+    return result == 1
+
+
+@njit(cache=True)
+def pibt_step(nbr, dist, rows, q_from, q_to, order, occ_now, occ_nxt, xs, ys, index, width: int,
+              diagonal: bool, st_agent, st_pos, st_nc, st_cand, rng) -> bool:
+    """Fills q_to (entries already >= 0 are fixed constraints, with occ_nxt set for them).
+
+    occ_now must map q_from's cells to their robots; occ_now and occ_nxt are
+    restored to all -1 before returning. False when a robot cannot move.
+    """
+    ok = True
+    for r in range(order.shape[0]):
+        i = order[r]
+        if q_to[i] < 0:
+            if not _pibt(i, nbr, dist, rows, q_from, q_to, occ_now, occ_nxt, xs, ys, index, width, diagonal,
+                         st_agent, st_pos, st_nc, st_cand, rng):
+                ok = False
+                break
+    for i in range(q_from.shape[0]):
+        if q_to[i] >= 0:
+            occ_nxt[q_to[i]] = -1
+    return ok
+
+
+@njit(cache=True)
+def update_priorities(prio: np.ndarray, q: np.ndarray, goals: np.ndarray) -> None:
+    for i in range(prio.shape[0]):
+        if q[i] == goals[i]:
+            prio[i] -= np.floor(prio[i])
+        else:
+            prio[i] += 1.0
+
+
+@njit(cache=True)
+def _run(nbr, dist, rows, starts, goals, prio, xs, ys, index, width: int, diagonal: bool,
+         max_steps: int, deadline: float, seed: int):
+    """PIBT until every robot is on its goal: (status, configurations [steps+1, n]); status 0 ok,
+    1 step cap, 2 time limit."""
+    n = nbr.shape[0]
+    na = starts.shape[0]
+    hist = np.empty((64, na), dtype=np.int32)
+    hist[0] = starts
+    occ_now = np.full(n, -1, dtype=np.int32)
+    occ_nxt = np.full(n, -1, dtype=np.int32)
+    k = nbr.shape[1] + 1
+    st_agent = np.empty(na, dtype=np.int32)
+    st_pos = np.empty(na, dtype=np.int32)
+    st_nc = np.empty(na, dtype=np.int32)
+    st_cand = np.empty((na, k), dtype=np.int32)
+    rng = np.array([np.uint64(seed) * np.uint64(2654435761) + np.uint64(88172645463325252)], dtype=np.uint64)
+    q_to = np.empty(na, dtype=np.int32)
+    t = 0
+    while True:
+        q_from = hist[t]
+        done = True
+        for i in range(na):
+            if q_from[i] != goals[i]:
+                done = False
+                break
+        if done:
+            return 0, hist[:t + 1]
+        if t >= max_steps:
+            return 1, hist[:t + 1]
+        if (t & 63) == 0 and now() > deadline:
+            return 2, hist[:t + 1]
+        for i in range(na):
+            occ_now[q_from[i]] = i
+        q_to[:] = -1
+        order = np.argsort(-prio)
+        pibt_step(nbr, dist, rows, q_from, q_to, order, occ_now, occ_nxt, xs, ys, index, width, diagonal,
+                  st_agent, st_pos, st_nc, st_cand, rng)
+        for i in range(na):
+            occ_now[q_from[i]] = -1
+        if t + 1 == hist.shape[0]:
+            bigger = np.empty((2 * hist.shape[0], na), dtype=np.int32)
+            bigger[:t + 1] = hist[:t + 1]
+            hist = bigger
+            q_from = hist[t]
+        hist[t + 1] = q_to
+        update_priorities(prio, q_to, goals)
+        t += 1
+
+
+def initial_priorities(inst: Instance) -> np.ndarray:
+    """Fractional start priorities: farther robots first, all below 1 so progress dominates."""
+    d = inst.start_distances().astype(np.float64)
+    return d / (d.max() + 1.0) if d.size else d
+
+
+def history_to_paths(inst: Instance, hist: np.ndarray) -> list[Path]:
+    """Configurations [steps, n] -> per-robot paths, cut after each robot's last arrival."""
+    away = hist != inst.goals[None, :]
+    # last step at which each robot is not on its goal; the path runs one step further
+    last = np.where(away.any(axis=0), hist.shape[0] - np.argmax(away[::-1], axis=0), 0)
+    return inst.to_paths([hist[:last[i] + 1, i] for i in range(inst.n)])
+
+
+def step_cap(inst: Instance) -> int:
+    d = inst.start_distances()
+    return int(max(1000, 20 * (int(d.max()) if d.size else 0) + 4 * inst.n))
+
+
+def pibt(problem: Problem, limits: Limits) -> list[Path]:
+    """Pure PIBT; PlanningError when robots are not all home after the step cap or time limit."""
+    inst = compile_problem(problem)
+    if inst.n == 0:
+        return []
+    nbr, xs, ys, index, width = kernel_args(inst)
+    cap = step_cap(inst)
+    status, hist = _run(nbr, inst.table.dist, inst.rows, inst.starts, inst.goals, initial_priorities(inst),
+                        xs, ys, index, width, problem.connectivity == 8, cap,
+                        time.perf_counter() + limits.remaining(), problem.seed)
+    if status != 0:
+        home = int((hist[-1] == inst.goals).sum())
+        why = f"{cap} steps" if status == 1 else f"the time limit of {limits.seconds:g} s"
+        raise PlanningError(f"pibt: {inst.n - home} of {inst.n} robots not on their goals after {why}"
+                            " (PIBT can cycle; use lacam, which is complete)")
+    return history_to_paths(inst, hist)

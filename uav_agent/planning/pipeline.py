@@ -1,0 +1,169 @@
+"""The planning pipeline: checked input -> distances -> assignment -> paths -> validated plan.
+
+`plan_mission` is what the UAV agent, `uav-robots plan` and the benchmark call;
+every result it returns has passed the independent validator.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from protocol.errors import PlanningError
+
+from . import assignment as assign_mod
+from .distances import cost_matrix
+from .registry import DEFAULT_PLANNER, check_name, get_planner, is_complete
+from .types import Cell, Limits, Path, Problem, makespan, sum_of_costs
+from .validator import check
+
+ASSIGN_MODES = ("optimal", "bottleneck", "bruteforce", "none")
+
+
+@dataclass
+class PlanResult:
+    starts: list[Cell]                 # robot i starts at starts[i]
+    goals: list[Cell]                  # the goal assigned to robot i
+    assignment: list[int]              # goals[i] == input goals[assignment[i]]
+    paths: list[Path]                  # validated; paths[i][t] = cell of robot i at step t
+    planner: str                       # the planner whose paths these are
+    requested: str                     # the planner asked for (differs after a fallback)
+    assign: str
+    connectivity: int
+    fell_back: bool = False
+    notes: list[str] = field(default_factory=list)
+    timings: dict[str, float] = field(default_factory=dict)   # seconds per phase and "total"
+    metrics: dict[str, float] = field(default_factory=dict)   # sum_of_costs, makespan, lower_bound, ...
+
+
+def _check_cells(free: np.ndarray, cells: list[Cell], what: str) -> list[Cell]:
+    h, w = free.shape
+    out: list[Cell] = []
+    seen: dict[Cell, int] = {}
+    for i, c in enumerate(cells):
+        try:
+            x, y = (int(v) for v in c)
+        except (TypeError, ValueError):
+            raise PlanningError(f"{what} {i} is {c!r}, not an (x, y) cell") from None
+        if not (0 <= x < w and 0 <= y < h):
+            raise PlanningError(f"{what} {i} ({x}, {y}) is off the {w}x{h} grid")
+        if not free[y, x]:
+            raise PlanningError(f"{what} {i} ({x}, {y}) is on an obstacle")
+        if (x, y) in seen:
+            raise PlanningError(f"{what}s {seen[(x, y)]} and {i} are both at ({x}, {y})")
+        seen[(x, y)] = i
+        out.append((x, y))
+    return out
+
+
+def _check_input(free, starts, goals, planner, assign, connectivity, time_limit):
+    if not isinstance(free, np.ndarray) or free.ndim != 2 or free.size == 0:
+        raise PlanningError("the grid must be a non-empty 2-D array free[y, x]")
+    if assign not in ASSIGN_MODES:
+        raise PlanningError(f"unknown assignment {assign!r}: choose one of {', '.join(ASSIGN_MODES)}")
+    if connectivity not in (4, 8):
+        raise PlanningError(f"connectivity must be 4 or 8, got {connectivity!r}")
+    if not time_limit > 0:
+        raise PlanningError(f"the time limit must be positive, got {time_limit!r}")
+    check_name(planner)
+    free = np.asarray(free, dtype=bool)
+    starts = _check_cells(free, starts, "start")
+    goals = _check_cells(free, goals, "goal")
+    if not starts:
+        raise PlanningError("no robots to plan for")
+    if len(starts) != len(goals):
+        raise PlanningError(f"{len(starts)} robots but {len(goals)} goals: the counts must match")
+    return free, starts, goals
+
+
+def _assign(mode: str, cost: np.ndarray, starts: list[Cell], goals: list[Cell]) -> list[int]:
+    n = len(starts)
+    if mode == "none":
+        for i in range(n):
+            if not np.isfinite(cost[i, i]):
+                raise PlanningError(f"robot {i} at {starts[i]} cannot reach its goal {goals[i]}")
+        return list(range(n))
+    if mode == "bruteforce":
+        # The paper ranks combinations by straight-line distance; a pair with no path at
+        # all must still never be chosen.
+        euclid = np.asarray(assign_mod.euclidean_costs(starts, goals), dtype=float).copy()
+        euclid[~np.isfinite(cost)] = np.inf
+        return [int(j) for j in assign_mod.assign_bruteforce(euclid)]
+    if mode == "bottleneck":
+        return [int(j) for j in assign_mod.assign_bottleneck(cost)]
+    return [int(j) for j in assign_mod.assign_optimal(cost)]
+
+
+def _run(name: str, problem: Problem, limits: Limits) -> list[Path]:
+    paths = get_planner(name)(problem, limits)
+    return [[(int(x), int(y)) for x, y in p] for p in paths]
+
+
+def plan_mission(free: np.ndarray, starts: list[Cell], goals: list[Cell], *,
+                 planner: str = DEFAULT_PLANNER, assign: str = "optimal", connectivity: int = 4,
+                 time_limit: float = 60.0, fallback: bool = True, seed: int = 0) -> PlanResult:
+    """Assign goals to robots and plan collision-free paths, within `time_limit` seconds in all.
+
+    assign: "optimal" (min sum of true distances), "bottleneck" (min longest, then min sum),
+    "bruteforce" (the paper: all permutations, Euclidean costs, n <= 9), "none" (robot i -> goals[i]).
+    fallback: when a planner other than the default fails (the paper's priority waits
+    cannot resolve a conflict, PIBT livelocks, ...) or returns an invalid plan, the default
+    planner solves the same assignment and a note says why; False re-raises.
+    """
+    limits = Limits(time_limit)
+    t0 = time.perf_counter()
+    timings: dict[str, float] = {}
+    free, starts, goals = _check_input(free, starts, goals, planner, assign, connectivity, time_limit)
+    n = len(starts)
+
+    t = time.perf_counter()
+    cost = np.asarray(cost_matrix(free, starts, goals, connectivity), dtype=float)
+    timings["distances"] = time.perf_counter() - t
+    limits.check("distances")
+
+    t = time.perf_counter()
+    order = _assign(assign, cost, starts, goals)
+    timings["assignment"] = time.perf_counter() - t
+    assigned = [goals[j] for j in order]
+    lower_bound = float(cost[np.arange(n), order].sum())
+    limits.check("assignment")
+
+    problem = Problem(free=free, starts=starts, goals=assigned, connectivity=connectivity, seed=seed)
+    notes: list[str] = []
+    used, fell_back = planner, False
+    t = time.perf_counter()
+    validation = 0.0
+    try:
+        paths = _run(planner, problem, limits)
+        tv = time.perf_counter()
+        try:
+            check(problem, paths)
+        finally:
+            validation += time.perf_counter() - tv
+    except PlanningError as exc:
+        # A time-out is not the method's fault and leaves no time for another planner.
+        may_fall_back = fallback and not is_complete(planner) and not limits.expired()
+        if not may_fall_back:
+            raise
+        notes.append(f"{planner} failed ({exc}); fell back to {DEFAULT_PLANNER}")
+        used, fell_back = DEFAULT_PLANNER, True
+        paths = _run(DEFAULT_PLANNER, problem, limits)
+        tv = time.perf_counter()
+        check(problem, paths)
+        validation += time.perf_counter() - tv
+    timings["planning"] = time.perf_counter() - t - validation
+    timings["validation"] = validation
+    timings["total"] = time.perf_counter() - t0
+
+    soc = sum_of_costs(paths, assigned)
+    metrics = {
+        "robots": n,
+        "sum_of_costs": soc,
+        "makespan": makespan(paths, assigned),
+        "lower_bound": int(lower_bound) if lower_bound.is_integer() else lower_bound,
+        "soc_over_lb": soc / lower_bound if lower_bound > 0 else 1.0,
+    }
+    return PlanResult(starts=starts, goals=assigned, assignment=order, paths=paths, planner=used,
+                      requested=planner, assign=assign, connectivity=connectivity, fell_back=fell_back,
+                      notes=notes, timings=timings, metrics=metrics)

@@ -1,0 +1,380 @@
+"""Prioritized planning: robots one after another, each with space-time A* around the paths before it.
+
+Robots with longer shortest paths go first. A robot's path is found by A*
+over (cell, step) with the exact distance field as heuristic, avoiding the
+reservation table of earlier paths (vertex, swap and, in 8-connectivity,
+crossing-diagonal conflicts) and the goals where earlier robots have parked
+for good; it may only end on its own goal once no earlier path crosses that
+goal later. When a robot finds no path, it moves to the front of the order
+and the planning restarts (with random reorders after a few tries) until the
+time limit.
+
+The reservation table and the search are numba kernels shared with the
+LaCAM refinement (`lacam.py`), which replans groups of robots with them.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from numba import njit, objmode
+
+from protocol.errors import PlanningError
+
+from .distances import Instance, compile_problem
+from .types import Limits, Path, Problem
+
+EMPTY = -1
+TOMB = -2
+NEVER = np.iinfo(np.int32).max   # park time of a cell nobody parks on
+
+
+@njit(cache=True)
+def now() -> float:
+    with objmode(t="float64"):
+        t = time.perf_counter()
+    return t
+
+
+# ---- open-addressing hash map int64 -> int32 (keys >= 0; EMPTY/TOMB markers) ----
+
+@njit(cache=True)
+def _slot(key: int, mask: int) -> int:
+    h = np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)
+    return np.int64((h >> np.uint64(29)) & np.uint64(mask))
+
+
+@njit(cache=True)
+def hm_get(keys: np.ndarray, vals: np.ndarray, key: int) -> int:
+    mask = keys.shape[0] - 1
+    s = _slot(key, mask)
+    while True:
+        k = keys[s]
+        if k == key:
+            return vals[s]
+        if k == EMPTY:
+            return -1
+        s = (s + 1) & mask
+
+
+@njit(cache=True)
+def hm_put(keys: np.ndarray, vals: np.ndarray, meta: np.ndarray, key: int, val: int) -> None:
+    """Insert or overwrite; meta[0] counts used slots (live + tombstones), meta[1] live keys."""
+    mask = keys.shape[0] - 1
+    s = _slot(key, mask)
+    tomb = -1
+    while True:
+        k = keys[s]
+        if k == key:
+            vals[s] = val
+            return
+        if k == EMPTY:
+            break
+        if k == TOMB and tomb < 0:
+            tomb = s
+        s = (s + 1) & mask
+    if tomb >= 0:
+        s = tomb
+    else:
+        meta[0] += 1
+    keys[s] = key
+    vals[s] = val
+    meta[1] += 1
+
+
+@njit(cache=True)
+def hm_del(keys: np.ndarray, meta: np.ndarray, key: int) -> None:
+    mask = keys.shape[0] - 1
+    s = _slot(key, mask)
+    while True:
+        k = keys[s]
+        if k == key:
+            keys[s] = TOMB
+            meta[1] -= 1
+            return
+        if k == EMPTY:
+            return
+        s = (s + 1) & mask
+
+
+@njit(cache=True)
+def hm_new(capacity: int):
+    cap = 16
+    while cap < 2 * capacity:
+        cap *= 2
+    return np.full(cap, EMPTY, dtype=np.int64), np.empty(cap, dtype=np.int32), np.zeros(2, dtype=np.int64)
+
+
+@njit(cache=True)
+def hm_fit(keys: np.ndarray, vals: np.ndarray, meta: np.ndarray):
+    """Rehash when more than half full (tombstones count): call after every put."""
+    if 2 * meta[0] <= keys.shape[0]:
+        return keys, vals, meta
+    nk, nv, nm = hm_new(2 * meta[1] + 16)
+    for s in range(keys.shape[0]):
+        if keys[s] >= 0:
+            hm_put(nk, nv, nm, keys[s], vals[s])
+    return nk, nv, nm
+
+
+# ---- reservations: (cell, step) -> robot, park times of goals, latest use of each cell ----
+
+@njit(cache=True)
+def reserve(keys, vals, meta, n: int, path: np.ndarray, agent: int, park_time: np.ndarray,
+            park_owner: np.ndarray, last_use: np.ndarray):
+    """Books a path (its last cell is the robot's goal, held from then on)."""
+    for t in range(path.shape[0]):
+        v = path[t]
+        hm_put(keys, vals, meta, t * n + v, agent)
+        keys, vals, meta = hm_fit(keys, vals, meta)
+        if t > last_use[v]:
+            last_use[v] = t
+    g = path[path.shape[0] - 1]
+    park_time[g] = path.shape[0] - 1
+    park_owner[g] = agent
+    return keys, vals, meta
+
+
+@njit(cache=True)
+def unreserve(keys, meta, n: int, path: np.ndarray, park_time: np.ndarray, park_owner: np.ndarray) -> None:
+    """Removes a path; last_use stays an upper bound, which only makes goal checks scan further."""
+    for t in range(path.shape[0]):
+        hm_del(keys, meta, t * n + path[t])
+    g = path[path.shape[0] - 1]
+    park_time[g] = NEVER
+    park_owner[g] = -1
+
+
+@njit(cache=True)
+def _blocked(keys, vals, n: int, v: int, u: int, t: int, agent: int, park_time, park_owner,
+             xs, ys, index, width: int) -> bool:
+    """Whether moving v -> u between steps t and t+1 conflicts with a reservation."""
+    t1 = t + 1
+    if park_time[u] <= t1 and park_owner[u] != agent:
+        return True
+    if hm_get(keys, vals, t1 * n + u) >= 0:
+        return True
+    if u != v:
+        b = hm_get(keys, vals, t1 * n + v)
+        if b >= 0 and hm_get(keys, vals, t * n + u) == b:
+            return True  # swap
+        if xs[u] != xs[v] and ys[u] != ys[v]:
+            p = index[ys[v] * width + xs[u]]
+            q = index[ys[u] * width + xs[v]]
+            b = hm_get(keys, vals, t * n + p)
+            if b >= 0 and hm_get(keys, vals, t1 * n + q) == b:
+                return True  # crossing diagonals
+            b = hm_get(keys, vals, t * n + q)
+            if b >= 0 and hm_get(keys, vals, t1 * n + p) == b:
+                return True
+    return False
+
+
+@njit(cache=True)
+def st_astar(nbr, drow, unreach: int, start: int, goal: int, agent: int, keys, vals,
+             park_time, park_owner, last_use, xs, ys, index, width: int,
+             max_expand: int, t_max: int) -> np.ndarray:
+    """Space-time A* from (start, 0) to goal; returns the cell ids per step, or an empty array.
+
+    Every step costs 1 and (cell, step) determines the cost so far, so a state is
+    generated at most once. Ties on f go to the deeper state (closer to the goal).
+    The robot cannot finish before the last step another robot uses its goal,
+    so f = max(t + h, that step + 1): without it the search would fill the whole
+    space-time volume below that step before diving.
+    """
+    n = nbr.shape[0]
+    s = last_use[goal]
+    while s >= 0 and hm_get(keys, vals, s * n + goal) < 0:
+        s -= 1
+    last_use[goal] = s  # tightened: unreserve leaves it an upper bound
+    free_from = s + 1
+    k = nbr.shape[1]
+    cap = 1024
+    nv = np.empty(cap, dtype=np.int32)
+    nt = np.empty(cap, dtype=np.int32)
+    npar = np.empty(cap, dtype=np.int32)
+    hk = np.empty(cap, dtype=np.int64)
+    hn = np.empty(cap, dtype=np.int32)
+    sk, sv, sm = hm_new(cap)
+    big = np.int64(1) << np.int64(31)
+    nv[0] = start
+    nt[0] = 0
+    npar[0] = -1
+    nodes = 1
+    hk[0] = np.int64(max(drow[start], free_from)) * big + (big - 1)
+    hn[0] = 0
+    hsize = 1
+    hm_put(sk, sv, sm, start, 0)
+    expanded = 0
+    while hsize > 0:
+        # pop the heap minimum
+        node = hn[0]
+        hsize -= 1
+        if hsize > 0:
+            lk = hk[hsize]
+            ln = hn[hsize]
+            i = 0
+            while True:
+                c = 2 * i + 1
+                if c >= hsize:
+                    break
+                if c + 1 < hsize and hk[c + 1] < hk[c]:
+                    c += 1
+                if hk[c] >= lk:
+                    break
+                hk[i] = hk[c]
+                hn[i] = hn[c]
+                i = c
+            hk[i] = lk
+            hn[i] = ln
+        v = nv[node]
+        t = nt[node]
+        if v == goal and t >= free_from:
+            path = np.empty(t + 1, dtype=np.int32)
+            m = node
+            while m >= 0:
+                path[nt[m]] = nv[m]
+                m = npar[m]
+            return path
+        expanded += 1
+        if expanded > max_expand or t >= t_max:
+            if expanded > max_expand:
+                break
+            continue
+        for j in range(k + 1):
+            u = v if j == k else nbr[v, j]
+            if u < 0:
+                continue
+            hu = drow[u]
+            if hu >= unreach:
+                continue
+            if _blocked(keys, vals, n, v, u, t, agent, park_time, park_owner, xs, ys, index, width):
+                continue
+            key = np.int64(t + 1) * n + u
+            if hm_get(sk, sv, key) >= 0:
+                continue
+            if nodes == nv.shape[0]:
+                nv = np.concatenate((nv, np.empty(nodes, dtype=np.int32)))
+                nt = np.concatenate((nt, np.empty(nodes, dtype=np.int32)))
+                npar = np.concatenate((npar, np.empty(nodes, dtype=np.int32)))
+            nv[nodes] = u
+            nt[nodes] = t + 1
+            npar[nodes] = node
+            hm_put(sk, sv, sm, key, nodes)
+            sk, sv, sm = hm_fit(sk, sv, sm)
+            if hsize == hk.shape[0]:
+                hk = np.concatenate((hk, np.empty(hsize, dtype=np.int64)))
+                hn = np.concatenate((hn, np.empty(hsize, dtype=np.int32)))
+            fk = np.int64(max(t + 1 + hu, free_from)) * big + (big - 1 - (t + 1))
+            i = hsize
+            hsize += 1
+            while i > 0:
+                p = (i - 1) >> 1
+                if hk[p] <= fk:
+                    break
+                hk[i] = hk[p]
+                hn[i] = hn[p]
+                i = p
+            hk[i] = fk
+            hn[i] = nodes
+            nodes += 1
+    return np.empty(0, dtype=np.int32)
+
+
+@njit(cache=True)
+def _plan_in_order(nbr, dist, rows, unreach: int, starts, goals, order, xs, ys, index, width: int,
+                   max_expand: int, deadline: float):
+    """Plans robots in `order`; returns (failed robot or -1 or -2 on timeout, flat paths, offsets, lengths)."""
+    n = nbr.shape[0]
+    na = starts.shape[0]
+    keys, vals, meta = hm_new(1024)
+    park_time = np.full(n, NEVER, dtype=np.int32)
+    park_owner = np.full(n, -1, dtype=np.int32)
+    last_use = np.full(n, -1, dtype=np.int32)
+    poff = np.zeros(na, dtype=np.int64)
+    plen = np.zeros(na, dtype=np.int64)
+    buf = np.empty(1024, dtype=np.int32)
+    used = 0
+    horizon = 0
+    for r in range(na):
+        if now() > deadline:
+            return -2, buf, poff, plen
+        a = order[r]
+        drow = dist[rows[a]]
+        # after the last reserved step the world is static; nothing beyond a full sweep helps
+        t_max = horizon + n + 1
+        path = st_astar(nbr, drow, unreach, starts[a], goals[a], a, keys, vals, park_time, park_owner,
+                        last_use, xs, ys, index, width, max_expand, t_max)
+        if path.shape[0] == 0:
+            return a, buf, poff, plen
+        keys, vals, meta = reserve(keys, vals, meta, n, path, a, park_time, park_owner, last_use)
+        horizon = max(horizon, path.shape[0])
+        while used + path.shape[0] > buf.shape[0]:
+            buf = np.concatenate((buf, np.empty(buf.shape[0], dtype=np.int32)))
+        buf[used:used + path.shape[0]] = path
+        poff[a] = used
+        plen[a] = path.shape[0]
+        used += path.shape[0]
+    return -1, buf, poff, plen
+
+
+def kernel_args(inst: Instance) -> tuple:
+    """The grid arrays every search kernel takes: neighbours, coordinates, index, width."""
+    g = inst.graph
+    xs, ys = g.xy()
+    return g.nbr, xs.astype(np.int32), ys.astype(np.int32), g.index, g.width
+
+
+def max_expansions(inst: Instance) -> int:
+    """A per-search expansion cap, so one stuck robot triggers a restart rather than a long search."""
+    return int(min(4_000_000, max(20_000, 4 * inst.graph.n)))
+
+
+def split_paths(inst: Instance, buf: np.ndarray, poff: np.ndarray, plen: np.ndarray) -> list[Path]:
+    return inst.to_paths([buf[poff[i]:poff[i] + plen[i]] for i in range(inst.n)])
+
+
+def prioritized(problem: Problem, limits: Limits) -> list[Path]:
+    """Prioritized planning with space-time A*; PlanningError if no order works within the limit."""
+    inst = compile_problem(problem)
+    if inst.n == 0:
+        return []
+    ok, buf, poff, plen, tries, failed = plan_prioritized(inst, limits)
+    if not ok:
+        where = problem.starts[failed] if failed >= 0 else None
+        raise PlanningError(
+            f"prioritized planning: no conflict-free order found in {tries} tries within {limits.seconds:g} s"
+            + (f" (last blocked robot {failed} at {tuple(where)})" if where is not None else ""))
+    return split_paths(inst, buf, poff, plen)
+
+
+def plan_prioritized(inst: Instance, limits: Limits, max_tries: int | None = None):
+    """Restarts until an order works: (ok, flat paths, offsets, lengths, tries, last failed robot)."""
+    nbr, xs, ys, index, width = kernel_args(inst)
+    dist = inst.table.dist
+    rng = np.random.default_rng(inst.problem.seed)
+    d0 = inst.start_distances()
+    # longer paths first; the random key breaks ties reproducibly
+    order = np.lexsort((rng.random(inst.n), d0)).astype(np.int32)
+    failed = -1
+    tries = 0
+    cap = max_expansions(inst)
+    while max_tries is None or tries < max_tries:
+        limits.check("prioritized planning")
+        tries += 1
+        deadline = time.perf_counter() + limits.remaining()
+        failed, buf, poff, plen = _plan_in_order(nbr, dist, inst.rows, inst.table.unreachable, inst.starts,
+                                                 inst.goals, order, xs, ys, index, width, cap, deadline)
+        if failed == -1:
+            return True, buf, poff, plen, tries, -1
+        if failed == -2:
+            break
+        pos = int(np.flatnonzero(order == failed)[0])
+        if tries % 4 == 0:
+            # promoting the blocked robot keeps failing: shuffle the rest of the order
+            rest = np.delete(order, pos)
+            rng.shuffle(rest)
+            order = np.concatenate(([failed], rest)).astype(np.int32)
+        else:
+            order = np.concatenate(([failed], np.delete(order, pos))).astype(np.int32)
+    return False, None, None, None, tries, failed

@@ -1,0 +1,88 @@
+"""Hover poses from which a nadir camera sees every cell of the grid, sharp enough to read markers.
+
+Geometry: at altitude h a nadir pinhole camera sees a floor rectangle of
+(width_px / fx) * h by (height_px / fy) * h metres (yaw 0: image right = east)
+at fx * c / h pixels per cell. The highest altitude that keeps
+`min_px_per_cell` gives the widest footprint, hence the fewest frames; then the
+camera comes down as far as it can while keeping that many frames, because a
+lower view reads markers more reliably for free. Neighbouring footprints
+overlap by at least one cell (plus a pixel border), so every cell lies wholly
+inside at least one image.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple, Protocol
+
+from protocol.errors import MissionError
+
+
+class CameraLike(Protocol):
+    width: int
+    height: int
+    fx: float
+    fy: float
+
+
+class SurveyPose(NamedTuple):
+    north_m: float
+    east_m: float
+    alt_m: float     # above the floor (down = -alt_m), yaw 0
+
+
+def _tiles(extent_m: float, usable_m: float, overlap_m: float) -> int:
+    """How many footprints of `usable_m` overlapping by `overlap_m` cover `extent_m`."""
+    if usable_m >= extent_m:
+        return 1
+    return math.ceil((extent_m - overlap_m) / (usable_m - overlap_m) - 1e-9)
+
+
+def _centres(extent_m: float, usable_m: float, n: int) -> list[float]:
+    """n footprint centres spread evenly: the first starts at 0, the last ends at extent."""
+    if n == 1:
+        return [extent_m / 2]
+    stride = (extent_m - usable_m) / (n - 1)
+    return [usable_m / 2 + i * stride for i in range(n)]
+
+
+def survey_poses(width: int, height: int, cell_size_m: float, model: CameraLike, min_px_per_cell: float = 20.0,
+                 max_alt_m: float = 120.0, min_alt_m: float = 3.0, border_px: int = 8) -> list[SurveyPose]:
+    """Lawn-mower ordered hover poses (west to east, then back, moving south) covering a
+    width x height grid; one pose when one image can hold the whole grid."""
+    if width < 1 or height < 1:
+        raise MissionError(f"survey: grid size {width}x{height} is not positive")
+    if not cell_size_m > 0:
+        raise MissionError(f"survey: cell size must be positive, got {cell_size_m}")
+    if not 0 < min_alt_m <= max_alt_m:
+        raise MissionError(f"survey: need 0 < min_alt_m <= max_alt_m, got {min_alt_m} and {max_alt_m}")
+    usable_w, usable_h = model.width - 2 * border_px, model.height - 2 * border_px
+    if usable_w < 1 or usable_h < 1 or min_px_per_cell <= 0:
+        raise MissionError(f"survey: a {model.width}x{model.height} image with a {border_px} px border "
+                           f"cannot show cells at {min_px_per_cell} px")
+    # A footprint must also span more than one cell plus the overlap, or tiles never advance.
+    alt = min(max_alt_m, min(model.fx, model.fy) * cell_size_m / min_px_per_cell)
+    if alt < min_alt_m:
+        raise MissionError(f"survey: {min_px_per_cell} px per {cell_size_m} m cell needs flying below "
+                           f"{alt:.2f} m, under the minimum altitude {min_alt_m} m")
+    span_x, span_y = usable_w / model.fx, usable_h / model.fy   # footprint metres per metre of altitude
+    if min(span_x, span_y) * alt <= 2 * cell_size_m:
+        raise MissionError(f"survey: at {alt:.1f} m an image spans under two {cell_size_m} m cells; "
+                           "raise max_alt_m or lower min_px_per_cell")
+    ext_x, ext_y = width * cell_size_m, height * cell_size_m
+    nx = _tiles(ext_x, span_x * alt, cell_size_m)
+    ny = _tiles(ext_y, span_y * alt, cell_size_m)
+    # Lowest altitude at which nx x ny tiles still cover: n*U - (n-1)*c >= extent.
+    need = max((ext_x + (nx - 1) * cell_size_m) / nx / span_x, (ext_y + (ny - 1) * cell_size_m) / ny / span_y)
+    alt = min(alt, max(min_alt_m, need * (1 + 1e-6)))
+    easts = _centres(ext_x, span_x * alt, nx)
+    souths = _centres(ext_y, span_y * alt, ny)
+    # Footprints are centred on the principal point, not the image centre, if the two differ.
+    cx = getattr(model, "cx", (model.width - 1) / 2)
+    cy = getattr(model, "cy", (model.height - 1) / 2)
+    de = ((model.width - 1) / 2 - cx) / model.fx * alt
+    dn = -((model.height - 1) / 2 - cy) / model.fy * alt
+    poses: list[SurveyPose] = []
+    for row, south in enumerate(souths):
+        for east in (easts if row % 2 == 0 else easts[::-1]):
+            poses.append(SurveyPose(north_m=-south - dn, east_m=east - de, alt_m=alt))
+    return poses
