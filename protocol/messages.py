@@ -14,7 +14,7 @@ import json
 import types
 import typing
 from dataclasses import dataclass, field
-from typing import Any, TypeVar, get_args, get_origin
+from typing import Any, Callable, TypeVar, get_args, get_origin
 
 from .errors import ProtocolError
 
@@ -212,7 +212,7 @@ def decode(data: bytes | bytearray | memoryview, expected: type[M]) -> M:
     """Bytes -> message of type `expected`, or ProtocolError naming what is wrong."""
     data = bytes(data)
     name = expected.__name__
-    blob_name = _bytes_field(expected)
+    blob_name, fields = _schema(expected)
     head, blob = data, b""
     if blob_name is not None:
         head, sep, blob = data.partition(b"\0")
@@ -227,55 +227,106 @@ def decode(data: bytes | bytearray | memoryview, expected: type[M]) -> M:
     if body.get("type") != name:
         raise ProtocolError(f"expected a {name} message, got type {str(body.get('type'))[:40]!r}")
     if body.get("v") != PROTOCOL_VERSION:
-        raise ProtocolError(f"{name}: schema version {str(body.get('v'))[:20]!r} is not supported (this side speaks {PROTOCOL_VERSION})")
+        raise ProtocolError(f"{name}: schema version {str(body.get('v'))[:20]!r} is not supported "
+                            f"(this side speaks {PROTOCOL_VERSION})")
     kwargs: dict[str, Any] = {}
-    hints = _hints(expected)
-    for f in dataclasses.fields(expected):
-        if f.name == blob_name:
-            kwargs[f.name] = blob
-            continue
-        if f.name not in body:
-            if f.default is not dataclasses.MISSING:
-                continue
-            raise ProtocolError(f"{name}: field {f.name!r} is missing")
-        kwargs[f.name] = _convert(body[f.name], hints[f.name], f"{name}.{f.name}")
+    for fname, required, conv in fields:
+        if fname == blob_name:
+            kwargs[fname] = blob
+        elif fname in body:
+            kwargs[fname] = conv(body[fname])
+        elif required:
+            raise ProtocolError(f"{name}: field {fname!r} is missing")
     return expected(**kwargs)
 
 
-def _convert(value: Any, tp: Any, where: str) -> Any:
+_SCHEMAS: dict[type, tuple[str | None, list[tuple[str, bool, Callable[[Any], Any]]]]] = {}
+
+
+def _schema(cls: type) -> tuple[str | None, list[tuple[str, bool, Callable[[Any], Any]]]]:
+    """Per message type, once: the blob field and a compiled converter per field (decode is on the hot path)."""
+    if cls not in _SCHEMAS:
+        hints = _hints(cls)
+        fields = [(f.name, f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING,
+                   _converter(hints[f.name], f"{cls.__name__}.{f.name}")) for f in dataclasses.fields(cls)]
+        _SCHEMAS[cls] = (_bytes_field(cls), fields)
+    return _SCHEMAS[cls]
+
+
+def _fail(where: str, tp: Any, value: Any) -> ProtocolError:
+    return ProtocolError(f"{where}: expected {getattr(tp, '__name__', str(tp))}, got {type(value).__name__}")
+
+
+def _converter(tp: Any, where: str) -> Callable[[Any], Any]:
     origin = get_origin(tp)
-    if tp is Any:
-        return value
+    if tp is Any or tp is bytes:  # bytes travel after the NUL, never through JSON
+        return lambda v: v
     if tp is bool:
-        if isinstance(value, bool):
-            return value
-    elif tp is int:
-        if isinstance(value, int) and not isinstance(value, bool):
-            return value
-    elif tp is float:
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            return float(value)
-    elif tp is str:
-        if isinstance(value, str):
-            return value
-    elif origin is tuple:
+        def conv(v: Any) -> Any:
+            if v is True or v is False:
+                return v
+            raise _fail(where, tp, v)
+        return conv
+    if tp is int:
+        def conv(v: Any) -> Any:
+            if type(v) is int:
+                return v
+            raise _fail(where, tp, v)
+        return conv
+    if tp is float:
+        def conv(v: Any) -> Any:
+            if type(v) is float or type(v) is int:
+                return float(v)
+            raise _fail(where, tp, v)
+        return conv
+    if tp is str:
+        def conv(v: Any) -> Any:
+            if type(v) is str:
+                return v
+            raise _fail(where, tp, v)
+        return conv
+    if origin is tuple:
         args = get_args(tp)
-        if isinstance(value, list) and len(value) == len(args):
-            return tuple(_convert(v, a, where) for v, a in zip(value, args))
-    elif origin is list:
-        if isinstance(value, list):
-            (arg,) = get_args(tp)
-            return [_convert(v, arg, where) for v in value]
-    elif origin is dict:
-        if isinstance(value, dict):
-            _, varg = get_args(tp)
-            return {str(k): _convert(v, varg, where) for k, v in value.items()}
-    elif origin in (typing.Union, types.UnionType):
-        for arg in get_args(tp):
-            try:
-                return _convert(value, arg, where)
-            except ProtocolError:
-                pass
-    else:  # pragma: no cover - a schema author's mistake, not bad input
-        raise TypeError(f"unsupported schema type {tp} at {where}")
-    raise ProtocolError(f"{where}: expected {getattr(tp, '__name__', str(tp))}, got {type(value).__name__}")
+        if all(a is int for a in args):  # cells: the most common shape by far
+            n = len(args)
+
+            def conv(v: Any) -> Any:
+                if type(v) is list and len(v) == n and all(type(x) is int for x in v):
+                    return tuple(v)
+                raise _fail(where, tp, v)
+            return conv
+        parts = [_converter(a, where) for a in args]
+
+        def conv(v: Any) -> Any:
+            if type(v) is list and len(v) == len(parts):
+                return tuple(c(x) for c, x in zip(parts, v))
+            raise _fail(where, tp, v)
+        return conv
+    if origin is list:
+        item = _converter(get_args(tp)[0], where)
+
+        def conv(v: Any) -> Any:
+            if type(v) is list:
+                return [item(x) for x in v]
+            raise _fail(where, tp, v)
+        return conv
+    if origin is dict:
+        value = _converter(get_args(tp)[1], where)
+
+        def conv(v: Any) -> Any:
+            if type(v) is dict:
+                return {str(k): value(x) for k, x in v.items()}
+            raise _fail(where, tp, v)
+        return conv
+    if origin in (typing.Union, types.UnionType):
+        options = [_converter(a, where) for a in get_args(tp)]
+
+        def conv(v: Any) -> Any:
+            for c in options:
+                try:
+                    return c(v)
+                except ProtocolError:
+                    pass
+            raise _fail(where, tp, v)
+        return conv
+    raise TypeError(f"unsupported schema type {tp} at {where}")  # a schema author's mistake, not bad input

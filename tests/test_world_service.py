@@ -264,3 +264,19 @@ def test_world_in_process_on_zenoh_batches_two_clients(tmp_path):
             a.close()
             b.close()
             world.close()
+
+
+def test_world_leaves_when_the_uav_vanishes_mid_mission():
+    with Hub() as hub:
+        uav = FakeUav(hub.transport, hub.keys)
+        proc = start_world(hub, "--mavlink", "none")
+        try:
+            assert wait_alive(hub, hub.keys.alive_world)
+            time.sleep(0.3)
+            assert proc.poll() is None
+            uav.leave()  # no MissionEnd: the UAV crashed
+            assert proc.wait(5) == 0
+            assert "the UAV went away" in proc.stdout.read()
+        finally:
+            stop_process(proc)
+            uav.close()

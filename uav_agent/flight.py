@@ -115,7 +115,7 @@ class Flight:
         return self
 
     def close(self) -> None:
-        """Release MAVSDK. Idempotent; the Flight cannot be used afterwards."""
+        """Release MAVSDK (sockets, threads). Idempotent; `connect()` again to reuse the Flight."""
         mavsdk, self._mavsdk = self._mavsdk, None
         self._action = self._telemetry = self._system = None
         if mavsdk is not None:

@@ -89,12 +89,13 @@ def _load_instance(args):
 
 def cmd_plan(args: argparse.Namespace) -> int:
     try:
-        from .planning.pipeline import plan_mission
-        from .planning.plan_io import write_plan
-
         t0 = time.perf_counter()
         name, free, starts, goals, assign = _load_instance(args)
         t_load = time.perf_counter() - t0
+        # Imported after the input is checked: numba's start-up need not delay a one-line error.
+        from .planning.pipeline import plan_mission
+        from .planning.plan_io import write_plan
+
         result = plan_mission(free, starts, goals, planner=args.planner, assign=assign,
                               connectivity=args.connectivity, time_limit=args.time_limit,
                               fallback=not args.no_fallback, seed=args.seed)

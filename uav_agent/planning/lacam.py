@@ -25,7 +25,7 @@ from numba import njit
 from protocol.errors import PlanningError
 
 from .distances import Instance, compile_problem
-from .pibt import _crosses, history_to_paths, initial_priorities, pibt_step, rand_next, update_priorities
+from .pibt import _crosses, degrees, history_to_paths, initial_priorities, pibt_step, rand_next, update_priorities
 from .prioritized import (hm_fit, hm_get, hm_new, hm_put, kernel_args, max_expansions, now, plan_prioritized,
                           reserve, st_astar, unreserve)
 from .types import Limits, Path, Problem
@@ -101,7 +101,7 @@ def _grow1(a: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def _search(nbr, dist, rows, starts, goals, prio0, xs, ys, index, width: int, diagonal: bool,
+def _search(nbr, deg, dist, rows, starts, goals, prio0, xs, ys, index, width: int, diagonal: bool, swap: bool,
             deadline: float, seed: int, max_nodes: int):
     """LaCAM's high-level search: (status, configurations from start to goal [T, n]).
 
@@ -135,6 +135,7 @@ def _search(nbr, dist, rows, starts, goals, prio0, xs, ys, index, width: int, di
     st_pos = np.empty(na, dtype=np.int32)
     st_nc = np.empty(na, dtype=np.int32)
     st_cand = np.empty((na, k), dtype=np.int32)
+    st_swap = np.empty(na, dtype=np.int32)
     rng = np.array([np.uint64(seed) * np.uint64(2654435761) + np.uint64(88172645463325252)], dtype=np.uint64)
     q_to = np.empty(na, dtype=np.int32)
     cands = np.empty(k, dtype=np.int32)
@@ -242,8 +243,8 @@ def _search(nbr, dist, rows, starts, goals, prio0, xs, ys, index, width: int, di
                     break
                 c = l_parent[c]
         if ok:
-            ok = pibt_step(nbr, dist, rows, q_from, q_to, order, occ_now, occ_nxt, xs, ys, index, width,
-                           diagonal, st_agent, st_pos, st_nc, st_cand, rng)
+            ok = pibt_step(nbr, deg, dist, rows, goals, q_from, q_to, order, occ_now, occ_nxt, xs, ys, index,
+                           width, diagonal, swap, st_agent, st_pos, st_nc, st_cand, st_swap, rng)
         else:
             for i in range(na):
                 if q_to[i] >= 0:
@@ -313,11 +314,11 @@ def _search(nbr, dist, rows, starts, goals, prio0, xs, ys, index, width: int, di
     return 0, out
 
 
-def search(inst: Instance, limits: Limits, max_nodes: int = 2**31 - 1) -> np.ndarray:
+def search(inst: Instance, limits: Limits, max_nodes: int = 2**31 - 1, swap: bool = True) -> np.ndarray:
     """LaCAM's search alone: configurations [T, n] (compact ids) from the starts to the goals."""
     nbr, xs, ys, index, width = kernel_args(inst)
-    status, hist = _search(nbr, inst.table.dist, inst.rows, inst.starts, inst.goals, initial_priorities(inst),
-                           xs, ys, index, width, inst.problem.connectivity == 8,
+    status, hist = _search(nbr, degrees(nbr), inst.table.dist, inst.rows, inst.starts, inst.goals,
+                           initial_priorities(inst), xs, ys, index, width, inst.problem.connectivity == 8, swap,
                            time.perf_counter() + limits.remaining(), inst.problem.seed, max_nodes)
     if status == 1:
         raise PlanningError(f"lacam: no solution exists for these {inst.n} robots (every configuration explored)")
@@ -333,3 +334,200 @@ def lacam(problem: Problem, limits: Limits) -> list[Path]:
     if inst.n == 0:
         return []
     return history_to_paths(inst, search(inst, limits))
+
+
+@njit(cache=True)
+def _refine(nbr, dist, rows, unreach: int, starts, goals, d0, buf, poff, plen, xs, ys, index, width: int,
+            max_expand: int, deadline: float, target: int, seed: int, group: int):
+    """Large neighbourhood search: replan a delayed robot and the robots in its way, keep improvements.
+
+    Paths are cell-id runs in `buf` (robot a: buf[poff[a]:poff[a]+plen[a]], ending on
+    its goal when it arrives for good). Returns the new (buf, poff, plen, sum of costs, iterations).
+    """
+    n = nbr.shape[0]
+    na = starts.shape[0]
+    total = 0
+    for a in range(na):
+        total += plen[a]
+    keys, vals, meta = hm_new(total)
+    park_time = np.full(n, np.iinfo(np.int32).max, dtype=np.int32)
+    park_owner = np.full(n, -1, dtype=np.int32)
+    last_use = np.full(n, -1, dtype=np.int32)
+    soc = 0
+    horizon = 0
+    for a in range(na):
+        keys, vals, meta = reserve(keys, vals, meta, n, buf[poff[a]:poff[a] + plen[a]], a, park_time, park_owner,
+                                   last_use)
+        soc += plen[a] - 1
+        horizon = max(horizon, plen[a])
+    used = 0
+    for a in range(na):
+        used = max(used, poff[a] + plen[a])
+    rng = np.array([np.uint64(seed) * np.uint64(2654435761) + np.uint64(1442695040888963407)], dtype=np.uint64)
+    members = np.empty(group, dtype=np.int32)
+    in_group = np.zeros(na, dtype=np.bool_)
+    tmp_off = np.empty(group, dtype=np.int64)
+    tmp_len = np.empty(group, dtype=np.int64)
+    tmp = np.empty(1024, dtype=np.int32)
+    fails = np.zeros(na, dtype=np.int32)    # recent fruitless tries per robot, to spread the effort
+    it = 0
+    stale = 0
+    while soc > target:
+        it += 1
+        if (it & 3) == 0 and now() > deadline:
+            break
+        # the seed: the most delayed of a few random robots (tournament), fresh failures discounted
+        a = -1
+        best = 0
+        for s in range(8):
+            r = rand_next(rng) % na
+            dl = (plen[r] - 1 - d0[r]) >> min(fails[r], 20)
+            if dl > best:
+                best = dl
+                a = r
+        if a < 0:
+            stale += 1
+            if stale > 64:
+                # the tournament keeps missing: look for any delayed robot at all
+                for r in range(na):
+                    if plen[r] - 1 > d0[r]:
+                        a = r
+                        break
+                if a < 0:
+                    break
+                fails[:] = 0
+                stale = 0
+            else:
+                continue
+        # the group: a, then robots met along one of a's shortest paths at the matching steps
+        m = 0
+        members[m] = a
+        in_group[a] = True
+        m += 1
+        drow = dist[rows[a]]
+        v = starts[a]
+        t = 0
+        while m < group:
+            for dt in range(2):
+                b = hm_get(keys, vals, (t + dt) * n + v)
+                if b >= 0 and not in_group[b] and m < group:
+                    members[m] = b
+                    in_group[b] = True
+                    m += 1
+            b = park_owner[v]
+            if b >= 0 and park_time[v] <= t + 1 and not in_group[b] and m < group:
+                members[m] = b
+                in_group[b] = True
+                m += 1
+            if v == goals[a]:
+                break
+            # step to a random neighbour one closer to the goal
+            nxt = -1
+            cnt = 0
+            for j in range(nbr.shape[1]):
+                u = nbr[v, j]
+                if u < 0:
+                    break
+                if drow[u] < drow[v]:
+                    cnt += 1
+                    if rand_next(rng) % cnt == 0:
+                        nxt = u
+            v = nxt
+            t += 1
+        while m < min(group, na) and m < 3:
+            b = rand_next(rng) % na
+            if not in_group[b]:
+                members[m] = b
+                in_group[b] = True
+                m += 1
+        for j in range(m - 1, 0, -1):
+            r = rand_next(rng) % (j + 1)
+            x = members[j]
+            members[j] = members[r]
+            members[r] = x
+        old = 0
+        for j in range(m):
+            b = members[j]
+            old += plen[b] - 1
+            unreserve(keys, meta, n, buf[poff[b]:poff[b] + plen[b]], park_time, park_owner)
+        # replan the group one robot at a time
+        ok = True
+        new = 0
+        filled = 0
+        done = 0
+        for j in range(m):
+            b = members[j]
+            path = st_astar(nbr, dist[rows[b]], unreach, starts[b], goals[b], b, keys, vals, park_time, park_owner,
+                            last_use, xs, ys, index, width, max_expand, horizon + n + 1)
+            if path.shape[0] == 0:
+                ok = False
+                break
+            new += path.shape[0] - 1
+            keys, vals, meta = reserve(keys, vals, meta, n, path, b, park_time, park_owner, last_use)
+            done += 1
+            while filled + path.shape[0] > tmp.shape[0]:
+                tmp = np.concatenate((tmp, np.empty(tmp.shape[0], dtype=np.int32)))
+            tmp[filled:filled + path.shape[0]] = path
+            tmp_off[j] = filled
+            tmp_len[j] = path.shape[0]
+            filled += path.shape[0]
+            if new >= old:
+                ok = False      # cannot improve any more
+                break
+        if ok and new < old:
+            while used + filled > buf.shape[0]:
+                buf = np.concatenate((buf, np.empty(buf.shape[0], dtype=np.int32)))
+            for j in range(m):
+                b = members[j]
+                poff[b] = used + tmp_off[j]
+                plen[b] = tmp_len[j]
+                horizon = max(horizon, plen[b])
+                fails[b] = 0
+            buf[used:used + filled] = tmp[:filled]
+            used += filled
+            soc -= old - new
+        else:
+            for j in range(done):
+                b = members[j]
+                unreserve(keys, meta, n, tmp[tmp_off[j]:tmp_off[j] + tmp_len[j]], park_time, park_owner)
+            for j in range(m):
+                b = members[j]
+                keys, vals, meta = reserve(keys, vals, meta, n, buf[poff[b]:poff[b] + plen[b]], b, park_time,
+                                           park_owner, last_use)
+            fails[a] += 1
+        for j in range(m):
+            in_group[members[j]] = False
+        if used > 4 * total + 4096:
+            # compact the path buffer
+            live = 0
+            for b in range(na):
+                live += plen[b]
+            nb = np.empty(2 * live + 1024, dtype=np.int32)
+            pos = 0
+            for b in range(na):
+                nb[pos:pos + plen[b]] = buf[poff[b]:poff[b] + plen[b]]
+                poff[b] = pos
+                pos += plen[b]
+            buf = nb
+            used = pos
+            total = live
+    return buf, poff, plen, soc, it
+
+
+def trimmed(inst: Instance, hist: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Configurations [T, n] -> flat per-robot cell-id paths cut after each last arrival."""
+    away = hist != inst.goals[None, :]
+    last = np.where(away.any(axis=0), hist.shape[0] - np.argmax(away[::-1], axis=0), 0)
+    plen = (last + 1).astype(np.int64)
+    poff = np.concatenate(([0], np.cumsum(plen)[:-1])).astype(np.int64)
+    buf = np.concatenate([hist[:plen[i], i] for i in range(inst.n)]).astype(np.int32)
+    return buf, poff, plen
+
+
+def refine(inst: Instance, buf, poff, plen, seconds: float, target_ratio: float = 1.0, group: int = 8):
+    nbr, xs, ys, index, width = kernel_args(inst)
+    d0 = inst.start_distances()
+    target = int(np.floor(target_ratio * d0.sum()))
+    return _refine(nbr, inst.table.dist, inst.rows, inst.table.unreachable, inst.starts, inst.goals, d0,
+                   buf, poff.copy(), plen.copy(), xs, ys, index, width, max_expansions(inst),
+                   time.perf_counter() + seconds, target, inst.problem.seed, group)

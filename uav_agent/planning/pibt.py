@@ -76,61 +76,169 @@ def _crosses(u: int, v: int, q_to, occ_now, xs, ys, index, width: int) -> bool:
 
 
 @njit(cache=True)
-def _pibt(root: int, nbr, dist, rows, q_from, q_to, occ_now, occ_nxt, xs, ys, index, width: int,
-          diagonal: bool, st_agent, st_pos, st_nc, st_cand, rng) -> bool:
+def _ignorable(nbr, deg, u: int, v_pusher: int, occ_now, goals) -> bool:
+    """A neighbour that does not count as an escape: the pusher's cell, or a dead end
+    where a robot already sits on its goal."""
+    if u == v_pusher:
+        return True
+    a = occ_now[u]
+    return deg[u] == 1 and a >= 0 and goals[a] == u
+
+
+@njit(cache=True)
+def _swap_required(pusher: int, puller: int, v_pusher: int, v_puller: int, nbr, deg, dist, rows,
+                   occ_now, goals) -> bool:
+    """Simulates the pusher driving the puller ahead along a corridor: True when they would
+    have to exchange places (no side cell to step aside into before the pusher's way ends)."""
+    dp = dist[rows[pusher]]
+    dq = dist[rows[puller]]
+    tmp = -1
+    steps = 0
+    while dp[v_puller] < dp[v_pusher] and steps < nbr.shape[0]:
+        steps += 1
+        m = 0
+        for j in range(nbr.shape[1]):
+            u = nbr[v_puller, j]
+            if u < 0:
+                break
+            if not _ignorable(nbr, deg, u, v_pusher, occ_now, goals):
+                m += 1
+                tmp = u
+        if m >= 2:
+            return False   # room to step aside
+        if m <= 0:
+            break
+        v_pusher = v_puller
+        v_puller = tmp
+    return dq[v_pusher] < dq[v_puller] and (dp[v_pusher] == 0 or dp[v_puller] < dp[v_pusher])
+
+
+@njit(cache=True)
+def _swap_possible(v_pusher_origin: int, v_puller_origin: int, nbr, deg, occ_now, goals) -> bool:
+    """Simulates pulling: True when the corridor behind opens onto a cell with a side exit."""
+    v_pusher = v_pusher_origin
+    v_puller = v_puller_origin
+    tmp = -1
+    steps = 0
+    while v_puller != v_pusher_origin and steps < nbr.shape[0]:
+        steps += 1
+        m = 0
+        for j in range(nbr.shape[1]):
+            u = nbr[v_puller, j]
+            if u < 0:
+                break
+            if not _ignorable(nbr, deg, u, v_pusher, occ_now, goals):
+                m += 1
+                tmp = u
+        if m >= 2:
+            return True
+        if m <= 0:
+            return False
+        v_pusher = v_puller
+        v_puller = tmp
+    return False
+
+
+@njit(cache=True)
+def _swap_agent(i: int, best: int, q_from, q_to, nbr, deg, dist, rows, occ_now, goals) -> int:
+    """LaCAM3's swap technique (Okumura, AAMAS 2024): the robot i should pull rather than push,
+    or -1. `best` is i's preferred next cell."""
+    v = q_from[i]
+    if best == v:
+        return -1
+    j = occ_now[best]
+    if j >= 0 and q_to[j] < 0 and _swap_required(i, j, v, best, nbr, deg, dist, rows, occ_now, goals) \
+            and _swap_possible(best, v, nbr, deg, occ_now, goals):
+        return j
+    for m in range(nbr.shape[1]):
+        u = nbr[v, m]
+        if u < 0:
+            break
+        k = occ_now[u]
+        if k < 0 or best == q_from[k]:
+            continue
+        if _swap_required(k, i, v, best, nbr, deg, dist, rows, occ_now, goals) \
+                and _swap_possible(best, v, nbr, deg, occ_now, goals):
+            return k
+    return -1
+
+
+@njit(cache=True)
+def _open_frame(d: int, i: int, nbr, deg, dist, rows, goals, q_from, q_to, occ_now, st_agent, st_pos, st_nc,
+                st_cand, st_swap, rng, swap: bool) -> None:
+    st_agent[d] = i
+    st_pos[d] = 0
+    m = _candidates(nbr, dist[rows[i]], q_from[i], occ_now, st_cand[d], rng)
+    st_nc[d] = m
+    st_swap[d] = -1
+    if swap:
+        j = _swap_agent(i, st_cand[d, 0], q_from, q_to, nbr, deg, dist, rows, occ_now, goals)
+        if j >= 0:
+            st_swap[d] = j
+            for a in range(m // 2):    # move away from the robot to pull
+                tmp = st_cand[d, a]
+                st_cand[d, a] = st_cand[d, m - 1 - a]
+                st_cand[d, m - 1 - a] = tmp
+
+
+@njit(cache=True)
+def _pibt(root: int, nbr, deg, dist, rows, goals, q_from, q_to, occ_now, occ_nxt, xs, ys, index, width: int,
+          diagonal: bool, swap: bool, st_agent, st_pos, st_nc, st_cand, st_swap, rng) -> bool:
     """PIBT's recursive call for `root`, written with an explicit stack (recursion depth can reach n)."""
-    d = 0
-    st_agent[0] = root
-    st_pos[0] = 0
-    st_nc[0] = _candidates(nbr, dist[rows[root]], q_from[root], occ_now, st_cand[0], rng)
+    _open_frame(0, root, nbr, deg, dist, rows, goals, q_from, q_to, occ_now, st_agent, st_pos, st_nc, st_cand,
+                st_swap, rng, swap)
     d = 1
     result = -1          # -1: nothing returned yet, 0: child failed, 1: child succeeded
     while d > 0:
         top = d - 1
         i = st_agent[top]
-        if result == 1:
-            d -= 1
-            continue
         if result == 0:
             st_pos[top] += 1
-        result = -1
-        pushed = False
-        while st_pos[top] < st_nc[top]:
-            v = st_cand[top, st_pos[top]]
-            if occ_nxt[v] >= 0:
-                st_pos[top] += 1
+        if result != 1:
+            result = -1
+            pushed = False
+            while st_pos[top] < st_nc[top]:
+                v = st_cand[top, st_pos[top]]
+                if occ_nxt[v] >= 0:
+                    st_pos[top] += 1
+                    continue
+                j = occ_now[v]
+                if j >= 0 and j != i and q_to[j] == q_from[i]:
+                    st_pos[top] += 1
+                    continue  # would swap with j
+                if diagonal and _crosses(q_from[i], v, q_to, occ_now, xs, ys, index, width):
+                    st_pos[top] += 1
+                    continue
+                q_to[i] = v
+                occ_nxt[v] = i
+                if j >= 0 and j != i and q_to[j] < 0:
+                    _open_frame(d, j, nbr, deg, dist, rows, goals, q_from, q_to, occ_now, st_agent, st_pos,
+                                st_nc, st_cand, st_swap, rng, swap)
+                    d += 1
+                    pushed = True
+                break
+            if pushed:
                 continue
-            j = occ_now[v]
-            if j >= 0 and j != i and q_to[j] == q_from[i]:
-                st_pos[top] += 1
-                continue  # would swap with j
-            if diagonal and _crosses(q_from[i], v, q_to, occ_now, xs, ys, index, width):
-                st_pos[top] += 1
+            if st_pos[top] >= st_nc[top]:
+                q_to[i] = q_from[i]
+                occ_nxt[q_from[i]] = i
+                result = 0
+                d -= 1
                 continue
-            q_to[i] = v
-            occ_nxt[v] = i
-            if j >= 0 and j != i and q_to[j] < 0:
-                st_agent[d] = j
-                st_pos[d] = 0
-                st_nc[d] = _candidates(nbr, dist[rows[j]], q_from[j], occ_now, st_cand[d], rng)
-                d += 1
-                pushed = True
-            break
-        if pushed:
-            continue
+        # success for i: pull the swap partner into the cell i leaves
+        s = st_swap[top]
+        if st_pos[top] == 0 and s >= 0 and q_to[s] < 0 and occ_nxt[q_from[i]] < 0 \
+                and not (diagonal and _crosses(q_from[s], q_from[i], q_to, occ_now, xs, ys, index, width)):
+            q_to[s] = q_from[i]
+            occ_nxt[q_from[i]] = s
+        result = 1
         d -= 1
-        if st_pos[top] < st_nc[top]:
-            result = 1
-        else:
-            q_to[i] = q_from[i]
-            occ_nxt[q_from[i]] = i
-            result = 0
     return result == 1
 
 
 @njit(cache=True)
-def pibt_step(nbr, dist, rows, q_from, q_to, order, occ_now, occ_nxt, xs, ys, index, width: int,
-              diagonal: bool, st_agent, st_pos, st_nc, st_cand, rng) -> bool:
+def pibt_step(nbr, deg, dist, rows, goals, q_from, q_to, order, occ_now, occ_nxt, xs, ys, index, width: int,
+              diagonal: bool, swap: bool, st_agent, st_pos, st_nc, st_cand, st_swap, rng) -> bool:
     """Fills q_to (entries already >= 0 are fixed constraints, with occ_nxt set for them).
 
     occ_now must map q_from's cells to their robots; occ_now and occ_nxt are
@@ -140,8 +248,8 @@ def pibt_step(nbr, dist, rows, q_from, q_to, order, occ_now, occ_nxt, xs, ys, in
     for r in range(order.shape[0]):
         i = order[r]
         if q_to[i] < 0:
-            if not _pibt(i, nbr, dist, rows, q_from, q_to, occ_now, occ_nxt, xs, ys, index, width, diagonal,
-                         st_agent, st_pos, st_nc, st_cand, rng):
+            if not _pibt(i, nbr, deg, dist, rows, goals, q_from, q_to, occ_now, occ_nxt, xs, ys, index, width,
+                         diagonal, swap, st_agent, st_pos, st_nc, st_cand, st_swap, rng):
                 ok = False
                 break
     for i in range(q_from.shape[0]):
@@ -160,7 +268,7 @@ def update_priorities(prio: np.ndarray, q: np.ndarray, goals: np.ndarray) -> Non
 
 
 @njit(cache=True)
-def _run(nbr, dist, rows, starts, goals, prio, xs, ys, index, width: int, diagonal: bool,
+def _run(nbr, deg, dist, rows, starts, goals, prio, xs, ys, index, width: int, diagonal: bool, swap: bool,
          max_steps: int, deadline: float, seed: int):
     """PIBT until every robot is on its goal: (status, configurations [steps+1, n]); status 0 ok,
     1 step cap, 2 time limit."""
@@ -175,6 +283,7 @@ def _run(nbr, dist, rows, starts, goals, prio, xs, ys, index, width: int, diagon
     st_pos = np.empty(na, dtype=np.int32)
     st_nc = np.empty(na, dtype=np.int32)
     st_cand = np.empty((na, k), dtype=np.int32)
+    st_swap = np.empty(na, dtype=np.int32)
     rng = np.array([np.uint64(seed) * np.uint64(2654435761) + np.uint64(88172645463325252)], dtype=np.uint64)
     q_to = np.empty(na, dtype=np.int32)
     t = 0
@@ -195,8 +304,8 @@ def _run(nbr, dist, rows, starts, goals, prio, xs, ys, index, width: int, diagon
             occ_now[q_from[i]] = i
         q_to[:] = -1
         order = np.argsort(-prio)
-        pibt_step(nbr, dist, rows, q_from, q_to, order, occ_now, occ_nxt, xs, ys, index, width, diagonal,
-                  st_agent, st_pos, st_nc, st_cand, rng)
+        pibt_step(nbr, deg, dist, rows, goals, q_from, q_to, order, occ_now, occ_nxt, xs, ys, index, width,
+                  diagonal, swap, st_agent, st_pos, st_nc, st_cand, st_swap, rng)
         for i in range(na):
             occ_now[q_from[i]] = -1
         if t + 1 == hist.shape[0]:
@@ -207,6 +316,10 @@ def _run(nbr, dist, rows, starts, goals, prio, xs, ys, index, width: int, diagon
         hist[t + 1] = q_to
         update_priorities(prio, q_to, goals)
         t += 1
+
+
+def degrees(nbr: np.ndarray) -> np.ndarray:
+    return (nbr >= 0).sum(axis=1).astype(np.int32)
 
 
 def initial_priorities(inst: Instance) -> np.ndarray:
@@ -228,15 +341,16 @@ def step_cap(inst: Instance) -> int:
     return int(max(1000, 20 * (int(d.max()) if d.size else 0) + 4 * inst.n))
 
 
-def pibt(problem: Problem, limits: Limits) -> list[Path]:
-    """Pure PIBT; PlanningError when robots are not all home after the step cap or time limit."""
+def pibt(problem: Problem, limits: Limits, swap: bool = True) -> list[Path]:
+    """PIBT (with LaCAM3's swap technique unless swap=False); PlanningError when robots are not
+    all home after the step cap or time limit."""
     inst = compile_problem(problem)
     if inst.n == 0:
         return []
     nbr, xs, ys, index, width = kernel_args(inst)
     cap = step_cap(inst)
-    status, hist = _run(nbr, inst.table.dist, inst.rows, inst.starts, inst.goals, initial_priorities(inst),
-                        xs, ys, index, width, problem.connectivity == 8, cap,
+    status, hist = _run(nbr, degrees(nbr), inst.table.dist, inst.rows, inst.starts, inst.goals,
+                        initial_priorities(inst), xs, ys, index, width, problem.connectivity == 8, swap, cap,
                         time.perf_counter() + limits.remaining(), problem.seed)
     if status != 0:
         home = int((hist[-1] == inst.goals).sum())

@@ -289,8 +289,8 @@ class Roadmap:
         gx, gy = check_cell(self.free, goal, "goal")
         width = self.free.shape[1] + 2
         diagonal = self.connectivity == 8
-        one = lambda v: np.array([v], dtype=np.int64)      # noqa: E731
-        direct = _segments_free(self.grid, width, one(sx), one(sy), one(gx), one(gy))
+        ends = np.array([[sx], [sy], [gx], [gy]], dtype=np.int64)
+        direct = _segments_free(self.grid, width, ends[0], ends[1], ends[2], ends[3])
         if direct[0]:
             px, py = np.array([sx, gx], dtype=np.int64), np.array([sy, gy], dtype=np.int64)
         else:
