@@ -311,19 +311,3 @@ def _install_signals(stop: threading.Event) -> None:
         return
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m robot_agents.agent",
-                                     description="Run simulated robots on a uav-robots fleet.")
-    add_robot_arguments(parser)
-    args = parser.parse_args(argv)
-    try:
-        return robot_command(args)
-    except UavRobotsError as exc:
-        print(f"error: {exc}", file=sys.stderr, flush=True)
-        return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())

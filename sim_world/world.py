@@ -6,7 +6,7 @@ markers and the multicopter. It serves, under `uavr/<fleet>/world/`:
 pose), `move` (one tick's moves, judged together) and `record` (what happened,
 for scoring). It announces `alive/world` once all of them are declared.
 
-    python -m sim_world.world --fleet F --connect tcp/127.0.0.1:7447 --robots 8
+    python -m uav_agent.cli world --fleet F --connect tcp/127.0.0.1:7447 --robots 8
 """
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import Any, Callable
 
 import numpy as np
 
@@ -562,18 +562,3 @@ def world_command(args: argparse.Namespace) -> int:
     print(f"world: {reason or 'stopped'}; {world.judge.tick} ticks, {world.judge.collisions} collisions",
           flush=True)
     return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m sim_world.world", description="Run the simulated world.")
-    add_world_arguments(parser)
-    args = parser.parse_args(argv)
-    try:
-        return world_command(args)
-    except UavRobotsError as exc:
-        print(f"error: {exc}", file=sys.stderr, flush=True)
-        return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())

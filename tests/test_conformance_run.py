@@ -21,7 +21,7 @@ def test_our_robot_conforms():
 
 
 def test_our_robot_conforms_with_an_explicit_command_and_id():
-    cmd = f"{shlex.quote(sys.executable)} -m robot_agents.agent --ids {{id}} --fleet {{fleet}} --connect {{endpoint}}"
+    cmd = f"{shlex.quote(sys.executable)} -m uav_agent.cli robot --ids {{id}} --fleet {{fleet}} --connect {{endpoint}}"
     run = _suite("--robot-cmd", cmd, "--robot-id", "42", "-k", "follow_the_plan")
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
     assert "1 passed" in run.stdout

@@ -1,5 +1,4 @@
 """The UAV's fleet link refuses garbage and forged messages and keeps its state."""
-import time
 
 from protocol.keys import Keys
 from protocol.messages import Done, PlanAck, RobotState, encode

@@ -13,7 +13,7 @@ import pytest
 
 from protocol.mapfile import ScenAgent, write_map, write_scen
 from sim_world.maps import NAMED, place, warehouse
-from uav_agent import plan_cli
+from uav_agent import cli
 from uav_agent.planning.plan_io import read_plan
 
 REPO = Path(__file__).resolve().parents[1]
@@ -21,7 +21,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 def run_cli(*argv: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    return subprocess.run([sys.executable, "-m", "uav_agent.plan_cli", *argv], cwd=REPO, env=env,
+    return subprocess.run([sys.executable, "-m", "uav_agent.cli", *argv], cwd=REPO, env=env,
                           capture_output=True, text=True, timeout=timeout)
 
 
@@ -57,11 +57,11 @@ def test_plan_subprocess_bad_map_exits_2(tmp_path):
 def test_plan_scen_keeps_pairs_unless_asked(small_files, capsys):
     d, free, pl = small_files
     out = d / "scen-plan.json"
-    assert plan_cli.main(["plan", "--map", str(d / "small.map"), "--scen", str(d / "small.scen"),
+    assert cli.main(["plan", "--map", str(d / "small.map"), "--scen", str(d / "small.scen"),
                           "--agents", "4", "--out", str(out), "--planner", "pibt"]) == 0
     plan = read_plan(out)
     assert plan.starts == pl.starts[:4] and plan.goals == pl.goals[:4]
-    assert plan_cli.main(["plan", "--map", str(d / "small.map"), "--scen", str(d / "small.scen"),
+    assert cli.main(["plan", "--map", str(d / "small.map"), "--scen", str(d / "small.scen"),
                           "--assign", "optimal", "--out", str(out), "--connectivity", "8"]) == 0
     plan = read_plan(out)
     assert plan.connectivity == 8 and plan.starts == pl.starts and sorted(plan.goals) == sorted(pl.goals)
@@ -70,7 +70,7 @@ def test_plan_scen_keeps_pairs_unless_asked(small_files, capsys):
 
 def test_plan_map_spec_and_fallback_note(tmp_path, capsys):
     out = tmp_path / "p.json"
-    assert plan_cli.main(["plan", "--map", "random:width=12,height=10,density=0.1", "--robots", "6",
+    assert cli.main(["plan", "--map", "random:width=12,height=10,density=0.1", "--robots", "6",
                           "--seed", "4", "--planner", "paper-prm", "--out", str(out)]) == 0
     assert read_plan(out).map_name.startswith("random:")
     # A head-on corridor: the paper's pipeline cannot, the default planner can.
@@ -82,9 +82,9 @@ def test_plan_map_spec_and_fallback_note(tmp_path, capsys):
     args = ["plan", "--map", str(tmp_path / "c.map"), "--scen", str(tmp_path / "c.scen"),
             "--planner", "paper-astar", "--out", str(out)]
     capsys.readouterr()
-    assert plan_cli.main(args) == 0
+    assert cli.main(args) == 0
     assert "fell back" in capsys.readouterr().out
-    assert plan_cli.main(args + ["--no-fallback"]) == 2
+    assert cli.main(args + ["--no-fallback"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and len(err.strip().splitlines()) == 1
 
@@ -115,7 +115,7 @@ def bad_files(small_files):
 ])
 def test_plan_bad_input_exits_2_with_one_line(bad_files, capsys, argv, match):
     argv = ["plan", *(bad_files.get(a, a) for a in argv), "--out", bad_files["OUT"]]
-    assert plan_cli.main(argv) == 2
+    assert cli.main(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and len(err.strip().splitlines()) == 1
     assert re.search(match, err), err
@@ -140,7 +140,7 @@ def paper_data(tmp_path):
 def test_bench_paper_subprocess(paper_data, tmp_path):
     out = tmp_path / "out"
     p = run_cli("bench", "paper", "--sizes", "3,5", "--repeat", "1", "--data", str(paper_data),
-                "--out", str(out), "--warm-cache", timeout=240)
+                "--out", str(out), timeout=240)
     assert p.returncode == 0, p.stderr
     md = (out / "paper.md").read_text()
     assert "| paper-astar | 3 | 1/1 |" in md and "| default (lacam) | 5 | 1/1 |" in md
@@ -157,7 +157,7 @@ def test_bench_paper_subprocess(paper_data, tmp_path):
 def test_bench_paper_timeout_skips_larger_sizes(paper_data, tmp_path):
     out = tmp_path / "out"
     p = run_cli("bench", "paper", "--sizes", "3,5", "--repeat", "2", "--pipelines", "default",
-                "--time-limit", "0.000001", "--data", str(paper_data), "--out", str(out), "--warm-cache",
+                "--time-limit", "0.000001", "--data", str(paper_data), "--out", str(out),
                 timeout=240)
     assert p.returncode == 0, p.stderr
     runs = list(csv.DictReader((out / "paper-runs.csv").open()))
@@ -168,7 +168,7 @@ def test_bench_paper_timeout_skips_larger_sizes(paper_data, tmp_path):
 def test_bench_movingai_subprocess(tmp_path):
     out = tmp_path / "out"
     p = run_cli("bench", "movingai", "--maps", "random-32-32-20", "--scens", "random-1..2", "--agents", "5,10",
-                "--out", str(out), "--warm-cache", timeout=240)
+                "--out", str(out), timeout=240)
     if "benchmark data not found" in p.stderr:
         pytest.skip("shared/benchmarks is not beside the repo")
     assert p.returncode == 0, p.stderr
@@ -187,6 +187,6 @@ def test_bench_movingai_subprocess(tmp_path):
     (["bench", "movingai", "--maps", "atlantis"], "no MovingAI map 'atlantis'"),
 ])
 def test_bench_bad_arguments(argv, match, capsys):
-    assert plan_cli.main(argv) == 2
+    assert cli.main(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and match in err and len(err.strip().splitlines()) == 1

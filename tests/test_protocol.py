@@ -8,8 +8,7 @@ from hypothesis import given, strategies as st
 from protocol.config import client_config, hub_config
 from protocol.errors import MissionError, ProtocolError
 from protocol.keys import Keys, robot_id_from_key
-from protocol.messages import (MESSAGE_TYPES, CameraFrame, MissionEnd, Plan, PlanAck, RobotState, Tick,
-                               decode, encode)
+from protocol.messages import (MESSAGE_TYPES, CameraFrame, Plan, decode, encode)
 from protocol.transport import MemoryBus, MemoryTransport, ZenohTransport
 
 cells = st.tuples(st.integers(0, 10_000), st.integers(0, 10_000))

@@ -8,7 +8,6 @@ after the mission, to score it.
 from __future__ import annotations
 
 import json
-import math
 import os
 import secrets
 import time

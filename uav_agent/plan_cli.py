@@ -1,7 +1,7 @@
 """`uav-robots plan` and `uav-robots bench`: planning alone, no processes, no drone.
 
 The lead's CLI registers these with `add_plan_parser(sub)` / `add_bench_parser(sub)`;
-`python -m uav_agent.plan_cli plan ...` runs them on their own.
+`uav-robots plan ...` runs them on their own.
 """
 from __future__ import annotations
 
@@ -148,9 +148,9 @@ def add_bench_parser(subparsers) -> argparse.ArgumentParser:
         q.add_argument("--connectivity", type=int, choices=(4, 8), default=4)
         q.add_argument("--data", help="the benchmark data directory (default: shared/benchmarks beside the repo)")
         q.add_argument("--out", default="bench-out", help="directory for the markdown and CSV (default bench-out/)")
-        q.add_argument("--warm-cache", action="store_true",
-                       help="use numba's on-disk cache (faster; the warm-up then measures a cache load, "
-                            "not the cold compile)")
+        q.add_argument("--cold-cache", dest="warm_cache", action="store_false",
+                       help="compile into an empty numba cache, so the warm-up measures the cold compile "
+                            "(default: the normal on-disk cache, whose warm-up is a cache load)")
 
     pp = sub.add_parser("paper", help="the paper's Table 2 on the 450x450 warehouse",
                         description="The paper's Table 2 re-run: the first N agents of warehouse-450-random-1, "
@@ -186,20 +186,3 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return _fail(exc)
     except KeyboardInterrupt:
         return _fail(UavRobotsError("interrupted"))
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="uav-robots", description="uav-robots planning commands")
-    sub = parser.add_subparsers(dest="command", metavar="{plan,bench}", required=True)
-    add_plan_parser(sub)
-    add_bench_parser(sub)
-    return parser
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    return args.func(args)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

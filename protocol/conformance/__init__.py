@@ -27,7 +27,7 @@ from protocol.messages import (Done, MissionEnd, MoveBatch, MoveBatchResult, Mov
 from protocol.transport import Handle, IncomingQuery, Transport, ZenohTransport
 
 REPO = Path(__file__).resolve().parents[2]
-DEFAULT_ROBOT_CMD = f"{shlex.quote(sys.executable)} -m robot_agents.agent --id {{id}} --fleet {{fleet}} --connect {{endpoint}}"
+DEFAULT_ROBOT_CMD = f"{shlex.quote(sys.executable)} -m uav_agent.cli robot --id {{id}} --fleet {{fleet}} --connect {{endpoint}}"
 
 
 def free_endpoint() -> str:

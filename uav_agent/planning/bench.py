@@ -564,5 +564,5 @@ if __name__ == "__main__":
     if sys.argv[1:] == ["--worker"]:
         sys.exit(worker_main())
     sys.stderr.write("usage: python -m uav_agent.planning.bench --worker  (jobs as JSON on stdin); "
-                     "run benchmarks with `uav-robots bench` or `python -m uav_agent.plan_cli bench`\n")
+                     "run benchmarks with `uav-robots bench` or `uav-robots bench`\n")
     sys.exit(2)

@@ -26,8 +26,8 @@ from protocol.errors import PlanningError
 
 from .distances import Instance, compile_problem
 from .pibt import _crosses, degrees, history_to_paths, initial_priorities, pibt_step, rand_next, update_priorities
-from .prioritized import (hm_fit, hm_get, hm_new, hm_put, kernel_args, max_expansions, now, plan_prioritized,
-                          reserve, st_astar, unreserve)
+from .prioritized import (hm_get, hm_new, kernel_args, max_expansions, now, plan_prioritized, reserve,
+                          split_paths, st_astar, unreserve)
 from .types import Limits, Path, Problem
 
 
@@ -329,11 +329,37 @@ def search(inst: Instance, limits: Limits, max_nodes: int = 2**31 - 1, swap: boo
     return hist
 
 
+# Prioritized planning is tried first only where robots are sparse: it is near-optimal there,
+# while in crowded corridors its failures cost more than LaCAM's whole search.
+PRIORITIZED_DENSITY = 0.05
+PRIORITIZED_SHARE = 0.5        # at most this share of the time limit goes to the prioritized try
+# refinement runs for REFINE_FACTOR x the time the first solution took (at least REFINE_MIN s)
+REFINE_FACTOR = 1.0
+REFINE_MIN = 0.05
+
+
 def lacam(problem: Problem, limits: Limits) -> list[Path]:
+    """The default planner: prioritized planning when sparse, else LaCAM; then a short refinement.
+
+    Complete (LaCAM is the backstop); PlanningError only when no plan is found within the limit.
+    """
+    started = time.perf_counter()
     inst = compile_problem(problem)
     if inst.n == 0:
         return []
-    return history_to_paths(inst, search(inst, limits))
+    solution = None
+    if inst.n <= PRIORITIZED_DENSITY * inst.graph.n:
+        share = Limits(min(limits.remaining(), PRIORITIZED_SHARE * limits.seconds))
+        ok, buf, poff, plen, _, _ = plan_prioritized(inst, share, max_tries=2)
+        if ok:
+            solution = buf, poff, plen
+    if solution is None:
+        solution = trimmed(inst, search(inst, limits))
+    buf, poff, plen = solution
+    budget = min(limits.remaining(), max(REFINE_MIN, REFINE_FACTOR * (time.perf_counter() - started)))
+    if budget > 0 and (plen - 1).sum() > inst.lower_bound():
+        buf, poff, plen, _, _ = refine(inst, buf, poff, plen, budget)
+    return split_paths(inst, buf, poff, plen)
 
 
 @njit(cache=True)

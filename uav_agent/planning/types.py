@@ -55,22 +55,17 @@ class Limits:
 Planner = Callable[[Problem, Limits], list[Path]]
 
 
+def arrival(path: Path, goal: Cell) -> int:
+    """The step at which a robot last arrives at its goal: its cost in the MAPF convention."""
+    t = len(path) - 1
+    while t > 0 and path[t - 1] == goal:
+        t -= 1
+    return t
+
+
 def sum_of_costs(paths: list[Path], goals: list[Cell]) -> int:
-    """MAPF convention: a robot's cost is the step at which it last arrives at its goal."""
-    total = 0
-    for p, g in zip(paths, goals):
-        t = len(p) - 1
-        while t > 0 and p[t - 1] == g:
-            t -= 1
-        total += t
-    return total
+    return sum(arrival(p, g) for p, g in zip(paths, goals))
 
 
 def makespan(paths: list[Path], goals: list[Cell]) -> int:
-    best = 0
-    for p, g in zip(paths, goals):
-        t = len(p) - 1
-        while t > 0 and p[t - 1] == g:
-            t -= 1
-        best = max(best, t)
-    return best
+    return max((arrival(p, g) for p, g in zip(paths, goals)), default=0)
