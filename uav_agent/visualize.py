@@ -54,28 +54,36 @@ def replay_gif(path: str | Path, free: np.ndarray, executed: dict[int, list[Cell
                max_frames: int = 150, max_px: int = 600, fps: int = 12) -> int:
     """An animated GIF of the robots as the world recorded them; returns the frame count.
 
-    Long missions are sampled down to `max_frames` so a 1000-step run stays a small file.
+    Frames are drawn straight into palette indices (0 floor, 1 shelf, 2.. robots),
+    so no colour quantisation is needed; long missions are sampled down to
+    `max_frames` so a 1000-step run stays a small file.
     """
-    import imageio.v2 as imageio
+    from PIL import Image
 
     s = _scale(free, max_px)
-    base = base_image(free, s)
     ids = sorted(executed)
-    colours = dict(zip(ids, _palette(len(ids))))
+    n_colours = min(len(ids), 254)
+    slot = {rid: 2 + i % n_colours for i, rid in enumerate(ids)}
+    palette = [*FLOOR[::-1], *SHELF[::-1]]
+    for b, g, r in _palette(n_colours):
+        palette += [r, g, b]
+    base = np.kron(np.where(free, 0, 1).astype(np.uint8), np.ones((s, s), np.uint8))
+    for rid in ids:
+        if rid in goals:
+            x, y = goals[rid]
+            cv2.rectangle(base, (x * s, y * s), (x * s + s - 1, y * s + s - 1), slot[rid], 1)
     ticks = max((len(v) for v in executed.values()), default=1)
     frames_at = sorted(set(np.linspace(0, ticks - 1, min(ticks, max_frames)).round().astype(int).tolist()))
     r = max(1, s // 2 - 1)
     frames = []
     for t in frames_at:
-        img = base.copy()
-        for i in ids:
-            if i in goals:
-                cv2.rectangle(img, (goals[i][0] * s, goals[i][1] * s),
-                              (goals[i][0] * s + s - 1, goals[i][1] * s + s - 1), colours[i], 1)
-        for i in ids:
-            cells = executed[i]
-            c = cells[min(t, len(cells) - 1)]
-            cv2.circle(img, _centre(tuple(c), s), r, colours[i], -1)
-        frames.append(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
-    imageio.mimsave(str(path), frames, duration=1.0 / fps, loop=0)
+        idx = base.copy()
+        for rid in ids:
+            cells = executed[rid]
+            cv2.circle(idx, _centre(tuple(cells[min(t, len(cells) - 1)]), s), r, slot[rid], -1)
+        img = Image.fromarray(idx, mode="P")
+        img.putpalette(palette)
+        frames.append(img)
+    frames[0].save(str(path), save_all=True, append_images=frames[1:], duration=int(1000 / fps), loop=0,
+                   optimize=False)
     return len(frames)
