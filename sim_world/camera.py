@@ -47,6 +47,7 @@ CELL_UNITS = 8
 MARKER_UNITS = 6
 GOAL_RADIUS = 0.38         # of a cell, the green disc
 GOAL_RING = 0.07           # of a cell, the dark ring around it
+MAX_TEXTURE_PX = 8192
 
 
 @dataclass(frozen=True)
@@ -97,7 +98,7 @@ class CameraPose(NamedTuple):
     yaw_rad: float = 0.0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Scene:
     """What is physically on the floor: the grid, robots by marker id, goal markers."""
     free: np.ndarray                       # bool [height, width], True = floor
@@ -122,6 +123,8 @@ class Scene:
 def floor_homography(pose: CameraPose | tuple, model: CameraModel, cell_size_m: float) -> np.ndarray:
     """3x3 map from floor coordinates in cells (u = east/c, v = -north/c) to image pixels."""
     n, e, d, yaw = (tuple(pose) + (0.0,))[:4]
+    if not all(math.isfinite(v) for v in (n, e, d, yaw)):
+        raise MissionError(f"camera: pose {tuple(pose)} is not finite")
     if not d < 0:
         raise MissionError(f"camera: pose down={d} m is not above the floor (down must be negative)")
     if not cell_size_m > 0:
@@ -166,7 +169,10 @@ def _texture(scene: Scene, x0: int, y0: int, x1: int, y1: int, ppc: int) -> np.n
         if x0 <= rx < x1 and y0 <= ry < y1:
             px, py = (rx - x0) * ppc, (ry - y0) * ppc
             tex[py:py + ppc, px:px + ppc] = MARKER_QUIET_BGR
-            tex[py + unit:py + (CELL_UNITS - 1) * unit, px + unit:px + (CELL_UNITS - 1) * unit] = _marker(rid, unit)
+            if unit:
+                tex[py + unit:py + (CELL_UNITS - 1) * unit, px + unit:px + (CELL_UNITS - 1) * unit] = _marker(rid, unit)
+            else:   # seen from so far that a module is under a texture pixel: a dark blob is all there is
+                tex[py + ppc // 4:py + ppc - ppc // 4, px + ppc // 4:px + ppc - ppc // 4] = 0
     return tex
 
 
@@ -229,7 +235,8 @@ def render(scene: Scene, pose: CameraPose | tuple, model: CameraModel, cell_size
         outside[:] = OUTSIDE_BGR
         return _degrade(outside, model, seed)
     image_ppc = min(model.fx, model.fy) * cell_size_m / -pose[2]
-    ppc = _texture_ppc(image_ppc)
+    # A view of a huge floor from very high: keep the texture within OpenCV's comfort.
+    ppc = max(1, min(_texture_ppc(image_ppc), MAX_TEXTURE_PX // max(x1 - x0, y1 - y0)))
     tex = _texture(scene, x0, y0, x1, y1, ppc)
     # Texture pixel centre (i, j) is floor point (x0 + (i + 0.5)/ppc, y0 + (j + 0.5)/ppc) cells.
     tex_to_floor = np.array([[1 / ppc, 0, x0 + 0.5 / ppc], [0, 1 / ppc, y0 + 0.5 / ppc], [0, 0, 1]])

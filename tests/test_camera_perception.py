@@ -5,6 +5,7 @@ perception sees only the images and their CameraFrame metadata.
 """
 from __future__ import annotations
 
+import itertools
 import math
 
 import cv2
@@ -15,8 +16,15 @@ from hypothesis import strategies as st
 
 from protocol.errors import MapError, MissionError, ProtocolError
 from protocol.messages import CameraFrame, decode, encode
-from sim_world.camera import (CameraModel, Scene, camera_frame, cell_centre_ned, encode_frame, floor_homography,
-                              render)
+from sim_world.camera import (
+    CameraModel,
+    Scene,
+    camera_frame,
+    cell_centre_ned,
+    encode_frame,
+    floor_homography,
+    render,
+)
 from sim_world.maps import place, random_map, resolve_map, warehouse
 from uav_agent.perception import Frame, decode_frame, homography, perceive
 from uav_agent.survey import survey_poses
@@ -145,6 +153,17 @@ def test_mid_size_warehouse_survey_with_noise():
     assert_matches(perceive(frames, free.shape[1], free.shape[0], CELL), scene)
 
 
+def test_harsh_images_never_give_a_robot_a_wrong_id_and_report_what_they_cannot_read():
+    free = warehouse(8, 20)
+    scene = make_scene(free, 60, seed=1)
+    model = CameraModel(noise_std=12.0, blur_sigma=1.3, lighting=0.35)   # ~20 px per cell: too poor to read all
+    world = perceive(survey_frames(scene, model, png=False), free.shape[1], free.shape[0], CELL)
+    assert {r: c for r, c in world.robots.items() if scene.robots.get(r) != c} == {}
+    assert set(world.robots.values()) | set(world.unidentified) == set(scene.robots.values())
+    assert 10 <= len(world.robots) < 60 and world.unidentified
+    assert np.array_equal(world.free, free) and world.goals == sorted(scene.goals)
+
+
 @pytest.mark.timeout(120)
 def test_paper_warehouse_450_with_50_robots_from_a_survey():
     free = warehouse(33, 112)
@@ -174,7 +193,8 @@ def test_random_small_scenes_are_perceived_exactly(w, h, density, robots, seed, 
 
 # --- merging and ambiguity ----------------------------------------------------
 
-def _frame(scene: Scene, pose, model=CameraModel()) -> CameraFrame:
+def _frame(scene: Scene, pose) -> CameraFrame:
+    model = CameraModel()
     return encode_frame(render(scene, pose, model, CELL), pose, model, 0.0)
 
 
@@ -224,7 +244,7 @@ def test_survey_sees_every_cell_whole_at_the_required_resolution(width, height, 
         covered |= inside[:-1, :-1] & inside[1:, :-1] & inside[:-1, 1:] & inside[1:, 1:]
     assert covered.all()
     # Lawn-mower order: each hop moves to a neighbouring footprint, never across the map.
-    hops = [math.dist(a[:2], b[:2]) for a, b in zip(poses, poses[1:])]
+    hops = [math.dist(a[:2], b[:2]) for a, b in itertools.pairwise(poses)]
     if hops:
         assert max(hops) <= 1.01 * max(model.width / model.fx, model.height / model.fy) * poses[0].alt_m
 
@@ -237,12 +257,12 @@ def test_survey_uses_one_frame_for_the_small_warehouse_and_dozens_for_450():
 
 
 @pytest.mark.parametrize("kwargs,match", [
-    (dict(width=0), "grid size"), (dict(cell_size_m=0.0), "cell size"),
-    (dict(max_alt_m=2.0), "min_alt_m <= max_alt_m"), (dict(cell_size_m=0.01), "minimum altitude"),
-    (dict(min_px_per_cell=0), "cannot show"),
+    ({"width": 0}, "grid size"), ({"cell_size_m": 0.0}, "cell size"),
+    ({"max_alt_m": 2.0}, "min_alt_m <= max_alt_m"), ({"cell_size_m": 0.01}, "minimum altitude"),
+    ({"min_px_per_cell": 0}, "cannot show"),
 ])
 def test_survey_rejects_bad_input_in_one_line(kwargs, match):
-    args = dict(width=24, height=18, cell_size_m=1.0, model=CameraModel()) | kwargs
+    args = {"width": 24, "height": 18, "cell_size_m": 1.0, "model": CameraModel()} | kwargs
     with pytest.raises(MissionError, match=match) as exc:
         survey_poses(**args)
     assert "\n" not in str(exc.value)

@@ -30,6 +30,7 @@ from protocol.geo import check_home, geo_to_ned, ned_to_geo
 
 DEFAULT_URL = "udpin://0.0.0.0:14540"
 POLL_S = 0.02
+SETTLED_M_S = 0.5  # a goto has arrived once the vehicle is this slow near its target
 
 _log = logging.getLogger("uav_agent.flight")
 _mavsdk_log = logging.getLogger("mavsdk")
@@ -164,8 +165,8 @@ class Flight:
     def goto(self, north_m: float, east_m: float, alt_m: float, yaw_rad: float | None = 0.0,
              timeout_s: float = 120.0, tolerance_m: float = 0.5) -> tuple[float, float, float]:
         """Fly to (north, east) at `alt_m` above home, facing `yaw_rad` (None keeps the heading);
-        wait until within `tolerance_m` horizontally and vertically. Returns the reached
-        (north, east, down)."""
+        wait until within `tolerance_m` horizontally and vertically and nearly stopped.
+        Returns the reached (north, east, down)."""
         _check_timeout(timeout_s)
         yaw_deg = math.nan if yaw_rad is None else math.degrees(yaw_rad)  # NaN: MAVLink's "keep current"
         if not all(math.isfinite(v) for v in (north_m, east_m, alt_m, tolerance_m)) or tolerance_m <= 0 or (
@@ -185,7 +186,10 @@ class Flight:
 
         def there():
             horizontal, vertical = error()
-            return horizontal <= tolerance_m and vertical <= tolerance_m
+            v = self._telemetry.velocity_ned()
+            # stopped, not just passing through: the camera should see a still pose
+            settled = math.hypot(v.north_m_s, v.east_m_s, v.down_m_s) <= SETTLED_M_S
+            return horizontal <= tolerance_m and vertical <= tolerance_m and settled
 
         self._wait(there, deadline, lambda: (
             f"vehicle did not reach N {north_m:.1f} E {east_m:.1f} at {alt_m:.1f} m within {timeout_s:g} s"

@@ -52,13 +52,13 @@ DECODE_MIN_CONFIDENCE = 0.04   # of the black-white contrast: the weakest module
 DETECTOR_MAX_CONTRADICTION = 0.25  # measured: true reads >= -0.18, misreads <= -0.30
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Frame:
     image: np.ndarray      # BGR uint8, height x width
     meta: CameraFrame      # its pose and intrinsics; meta.png is not read (may be empty)
 
 
-@dataclass
+@dataclass(eq=False)
 class WorldModel:
     free: np.ndarray                   # bool [height, width]; unseen cells are False
     robots: dict[int, Cell]            # marker id -> cell
@@ -85,6 +85,9 @@ def homography(meta: CameraFrame, cell_size_m: float) -> np.ndarray:
 
     Camera axes in NED for heading psi: image right = (-sin, cos, 0), image down =
     (-cos, -sin, 0), optical axis = (0, 0, 1); floor point (u, v) is NED (-v c, u c, 0)."""
+    numbers = (meta.fx, meta.fy, meta.cx, meta.cy, meta.north_m, meta.east_m, meta.down_m, meta.yaw_rad)
+    if not all(math.isfinite(v) for v in numbers) or meta.fx <= 0 or meta.fy <= 0:
+        raise ProtocolError(f"frame at t={meta.time_s:.2f}s: pose or intrinsics are not finite, positive numbers")
     if not meta.down_m < 0:
         raise MissionError(f"frame at t={meta.time_s:.2f}s: camera down={meta.down_m} m is not above the floor")
     s, co, c = math.sin(meta.yaw_rad), math.cos(meta.yaw_rad), cell_size_m
@@ -105,13 +108,12 @@ def _px_per_cell(H: np.ndarray) -> float:
     return float(math.sqrt(abs(np.linalg.det(H[:2, :2]))) / abs(H[2, 2]))
 
 
-def _detector(marker_perimeter_rate: float | None) -> cv2.aruco.ArucoDetector:
+def _detector(marker_perimeter_rate: float) -> cv2.aruco.ArucoDetector:
     params = cv2.aruco.DetectorParameters()
-    if marker_perimeter_rate is not None:
-        # The altitude fixes a marker's size in pixels: candidates far off it are
-        # shelves or noise, and skipping them makes detection several times faster.
-        params.minMarkerPerimeterRate = 0.6 * marker_perimeter_rate
-        params.maxMarkerPerimeterRate = 1.6 * marker_perimeter_rate
+    # The altitude fixes a marker's size in pixels: candidates far off it are
+    # shelves or noise, and skipping them makes detection several times faster.
+    params.minMarkerPerimeterRate = 0.6 * marker_perimeter_rate
+    params.maxMarkerPerimeterRate = 1.6 * marker_perimeter_rate
     # Sample bits on a finer grid and away from module edges: survey markers are ~15 px.
     params.perspectiveRemovePixelPerCell = 8
     params.perspectiveRemoveIgnoredMarginPerCell = 0.3
@@ -365,7 +367,7 @@ def perceive(frames: list[Frame | CameraFrame], width: int, height: int, cell_si
     marked = {(int(x), int(y)) for y, x in zip(*np.nonzero(marker_like))}
     unidentified = sorted(marked - robot_cells - goals)
     for x, y in list(robot_cells) + list(goals) + unidentified:
-        free[y, x] = True   # floor under a robot or a goal marker
+        free[y, x] = seen[y, x] = True   # floor under a robot or a goal marker
     if unidentified:
         warnings.append(f"{len(unidentified)} marker(s) seen but not read, at {unidentified[:5]}")
     return WorldModel(free=free, robots=robots, goals=sorted(goals), seen=seen,

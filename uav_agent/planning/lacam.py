@@ -336,6 +336,7 @@ PRIORITIZED_SHARE = 0.5        # at most this share of the time limit goes to th
 # refinement runs for REFINE_FACTOR x the time the first solution took (at least REFINE_MIN s)
 REFINE_FACTOR = 1.0
 REFINE_MIN = 0.05
+REFINE_TARGET = 1.005         # stop refining once the sum of costs is within 0.5 % of the lower bound
 
 
 def lacam(problem: Problem, limits: Limits) -> list[Path]:
@@ -357,8 +358,8 @@ def lacam(problem: Problem, limits: Limits) -> list[Path]:
         solution = trimmed(inst, search(inst, limits))
     buf, poff, plen = solution
     budget = min(limits.remaining(), max(REFINE_MIN, REFINE_FACTOR * (time.perf_counter() - started)))
-    if budget > 0 and (plen - 1).sum() > inst.lower_bound():
-        buf, poff, plen, _, _ = refine(inst, buf, poff, plen, budget)
+    if budget > 0 and (plen - 1).sum() > REFINE_TARGET * inst.lower_bound():
+        buf, poff, plen, _, _ = refine(inst, buf, poff, plen, budget, REFINE_TARGET)
     return split_paths(inst, buf, poff, plen)
 
 
