@@ -1,12 +1,16 @@
-"""Options and fixtures of the robot conformance suite.
+"""Options and fixtures of the robot and UAV conformance suites.
 
-    python -m pytest protocol/conformance --robot-cmd "my-robot --id {id} --fleet {fleet} --router {endpoint}"
+    python -m pytest protocol/conformance/test_robot_conformance.py \
+        --robot-cmd "my-robot --id {id} --fleet {fleet} --router {endpoint}"
+    python -m pytest protocol/conformance/test_uav_conformance.py \
+        --uav-cmd "my-uav --fleet {fleet} --router {endpoint} --mavlink {mavlink} --robots {robots}"
 """
 from __future__ import annotations
 
 import pytest
 
 from protocol.conformance import DEFAULT_ROBOT_CMD, FakeUav, FakeWorld, Hub, start_robot, stop_process
+from protocol.conformance.uav_harness import DEFAULT_UAV_CMD, PLACEHOLDERS, UavOptions
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -16,6 +20,20 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     group.addoption("--robot-id", type=int, default=7, help="the robot id to start it with")
     group.addoption("--robot-timeout", type=float, default=10.0,
                     help="seconds a robot gets to come alive (and to answer anything)")
+    d = UavOptions()
+    group.addoption("--uav-cmd", default=DEFAULT_UAV_CMD,
+                    help=f"command line of the UAV under test; placeholders {PLACEHOLDERS} "
+                         "({mavlink} is udpin://127.0.0.1:{mavlink_port}, where the simulated vehicle sends)")
+    group.addoption("--uav-map", default=d.map, help=f"the world's map for UAV missions (default {d.map})")
+    group.addoption("--uav-robots", type=int, default=d.robots, help=f"robots in UAV missions (default {d.robots})")
+    group.addoption("--uav-seed", type=int, default=d.seed, help="seed of the world's placement")
+    group.addoption("--uav-time-scale", type=float, default=d.time_scale,
+                    help=f"simulated seconds per second of the MAVLink vehicle (default {d.time_scale:g})")
+    group.addoption("--uav-tick-timeout", type=float, default=d.tick_timeout_s,
+                    help="the UAV's tick barrier timeout, passed as {tick_timeout}; the UAV must end a mission "
+                         "with a silent robot within this plus 10 s (default %(default)s)")
+    group.addoption("--uav-timeout", type=float, default=d.mission_timeout_s,
+                    help="seconds a whole UAV mission may take before the UAV is killed (default %(default)s)")
 
 
 @pytest.fixture
@@ -81,3 +99,11 @@ def robot(spawn, uav, world, rid, timeout, tmp_path):
 
 def _log(tmp_path) -> str:
     return "\n".join(p.read_text(errors="replace")[-2000:] for p in sorted(tmp_path.glob("robot-*.log")))
+
+
+@pytest.fixture(scope="session")
+def uav_options(request: pytest.FixtureRequest) -> UavOptions:
+    o = request.config.getoption
+    return UavOptions(cmd=o("--uav-cmd"), map=o("--uav-map"), robots=o("--uav-robots"), seed=o("--uav-seed"),
+                      time_scale=o("--uav-time-scale"), tick_timeout_s=o("--uav-tick-timeout"),
+                      mission_timeout_s=o("--uav-timeout"))

@@ -252,13 +252,6 @@ class FakeFleet(Waiter):
         with self.cv:
             return bool(self.log.plans) or any(s.phase == "dispatch" for s in self.log.statuses)
 
-    def snapshot(self) -> Observed:
-        with self.cv:
-            return dataclasses.replace(self.log, **{f.name: list(getattr(self.log, f.name))
-                                                    for f in dataclasses.fields(Observed)
-                                                    if isinstance(getattr(self.log, f.name), list)},
-                                       joined=dict(self.log.joined))
-
     def close(self) -> None:
         self._jobs.put(None)
         self._worker.join(MOVE_TIMEOUT_S + 1)
@@ -518,11 +511,11 @@ def run_mission(opts: UavOptions, behaviour: Misbehaviour, workdir: Path, late_j
                         stop_process(proc)
                         exited = time.monotonic()
                 # Its last messages and the token's withdrawal may still be on their way.
-                fleet.until(lambda: bool(fleet.log.ends) and fleet.log.uav_alive[-1:] != [(0, True)]
-                            and not (fleet.log.uav_alive and fleet.log.uav_alive[-1][1]), SETTLE_S)
-                log = fleet.snapshot()
+                fleet.until(lambda: bool(fleet.log.ends) and bool(fleet.log.uav_alive)
+                            and not fleet.log.uav_alive[-1][1], SETTLE_S)
             finally:
                 fleet.close()
+            log = fleet.log  # closed: nothing changes it any more
             return MissionRun(code=code, started=started, exited=exited,
                               stdout=out.read_text(errors="replace"), stderr=err.read_text(errors="replace"),
                               log=log, truth=site.truth, record=site.record(), vehicle=site.vehicle(),
