@@ -99,7 +99,8 @@ class Launcher:
         self._spawn("world", ["world", *common, "--connect", self.endpoint, "--map", a.map,
                               "--robots", str(a.robots), "--seed", str(a.seed),
                               "--connectivity", str(a.connectivity),
-                              "--mavlink", f"udpout:127.0.0.1:{self.udp}", "--time-scale", str(a.time_scale)],
+                              "--mavlink", f"udpout:127.0.0.1:{self.udp}", "--time-scale", str(a.time_scale),
+                              *(["--camera", a.camera] if a.camera else [])],
                     to_log=True)
         for group in robot_groups(a.robots, a.robots_per_process):
             ids = f"{group[0]}-{group[-1]}"

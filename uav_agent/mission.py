@@ -26,6 +26,9 @@ from .fleet import FleetLink
 from .progress import Progress
 
 QUERY_TIMEOUT_S = 10.0
+RELOOK_ROUNDS = 2          # closer looks at markers whose id did not decode
+RELOOK_MAX_CELLS = 20
+RELOOK_MIN_ALT_M = 3.0
 
 
 @dataclass
@@ -173,9 +176,9 @@ class Mission:
         # Hover over the floor's centre while the robots move: the leader keeps them in view.
         c = self.info.cell_size_m
         centre_n, centre_e = -self.info.height * c / 2, self.info.width * c / 2
-        hover_alt = max(p[2] for p in poses)
-        if len(poses) > 1:
-            self.flight.goto(centre_n, centre_e, hover_alt)
+        hover_alt = self._survey_alt = max(p[2] for p in poses)
+        self._hover_ned = (centre_n, centre_e, hover_alt) if len(poses) > 1 else poses[-1]
+        self.flight.goto(*self._hover_ned)
         n, e, d = self.flight.position_ned()
         self.uav["hover"] = [round(e / c, 2), round(-n / c, 2), round(-d, 2)]
         self._track_altitude()
@@ -184,14 +187,42 @@ class Mission:
     def _perceive(self):
         from .perception import perceive
 
+        # The robots on the network name the ids the camera may see; a marker read as any
+        # other id is a misread, not a robot.
+        expected = self.cfg.robots
+        if expected is not None:
+            self.fleet.wait_until(lambda: len(self.fleet.alive) >= expected, self.cfg.startup_timeout_s,
+                                  lambda: f"only {len(self.fleet.alive)} of {expected} robots came alive "
+                                          f"within {self.cfg.startup_timeout_s:g} s")
+        with self.fleet.cv:
+            known = set(self.fleet.alive) or None
         self._status("perceive", message=f"{len(self.frames)} image(s) through OpenCV")
-        model = perceive(self.frames, self.info.width, self.info.height, self.info.cell_size_m)
+        model = perceive(self.frames, self.info.width, self.info.height, self.info.cell_size_m, known_ids=known)
+        for attempt in range(1, RELOOK_ROUNDS + 1):
+            missing = sorted(set(known or ()) - set(model.robots))
+            if not model.unidentified or not missing:
+                break
+            # A marker is there but its id did not decode: look again from lower down.
+            cells = model.unidentified[:RELOOK_MAX_CELLS]
+            self._status("perceive", message=f"{len(cells)} unreadable marker(s): a closer look (round {attempt})")
+            scale = 2.0 ** attempt
+            for x, y in cells:
+                c = self.info.cell_size_m
+                alt = max(RELOOK_MIN_ALT_M, self._survey_alt / scale)
+                self.flight.goto(-(y + 0.5) * c, (x + 0.5) * c, alt)
+                self._capture()
+            model = perceive(self.frames, self.info.width, self.info.height, self.info.cell_size_m, known_ids=known)
+            self.flight.goto(*self._hover_ned)
         if model.unseen:
             raise MissionError(f"perception: {model.unseen} cells were not seen by any image")
-        if self.cfg.robots is not None and len(model.robots) != self.cfg.robots:
-            raise MissionError(f"perception found {len(model.robots)} robots, the mission expects {self.cfg.robots}")
+        if known is not None and set(model.robots) != known:
+            raise MissionError(f"perception: robots {sorted(known - set(model.robots))[:10]} are alive on the network "
+                               f"but not seen ({len(model.unidentified)} unreadable markers)")
+        if expected is not None and len(model.robots) != expected:
+            raise MissionError(f"perception found {len(model.robots)} robots, the mission expects {expected}")
         if len(model.goals) != len(model.robots):
             raise MissionError(f"perception found {len(model.robots)} robots but {len(model.goals)} goals")
+        self.perception_warnings = model.warnings
         self.clock.lap("perceive")
         return model
 
@@ -290,7 +321,8 @@ class Mission:
             "executed": record.executed,
             "perceived": {"rows": format_rows(model.free),
                           "robots": {str(i): list(c) for i, c in sorted(model.robots.items())},
-                          "goals": [list(g) for g in model.goals]},
+                          "goals": [list(g) for g in model.goals],
+                          "images": len(self.frames), "warnings": self.perception_warnings},
             "truth": record.truth,
             "uav": self.uav,
             "timings": self.clock.timings,

@@ -26,7 +26,7 @@ from protocol.errors import PlanningError
 
 from .distances import Instance, compile_problem
 from .pibt import _crosses, degrees, history_to_paths, initial_priorities, pibt_step, rand_next, update_priorities
-from .prioritized import (hm_get, hm_new, kernel_args, max_expansions, now, plan_prioritized, reserve,
+from .prioritized import (hm_get, hm_new, st_key, kernel_args, max_expansions, now, plan_prioritized, reserve,
                           split_paths, st_astar, unreserve)
 from .types import Limits, Path, Problem
 
@@ -436,7 +436,7 @@ def _refine(nbr, dist, rows, unreach: int, starts, goals, d0, buf, poff, plen, x
         t = 0
         while m < group:
             for dt in range(2):
-                b = hm_get(keys, vals, (t + dt) * n + v)
+                b = hm_get(keys, vals, st_key(v, t + dt))
                 if b >= 0 and not in_group[b] and m < group:
                     members[m] = b
                     in_group[b] = True

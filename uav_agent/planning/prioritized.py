@@ -42,11 +42,18 @@ def now() -> float:
 
 
 # ---- open-addressing hash map int64 -> int32 (keys >= 0; EMPTY/TOMB markers) ----
+# Keys are (cell << 32 | step). The slot scatters cells but keeps the steps of one cell
+# next to each other, so the lookups of one search step mostly share cache lines.
+
+@njit(cache=True)
+def st_key(v: int, t: int) -> int:
+    return (np.int64(v) << np.int64(32)) | np.int64(t)
+
 
 @njit(cache=True)
 def _slot(key: int, mask: int) -> int:
-    h = np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)
-    return np.int64((h >> np.uint64(29)) & np.uint64(mask))
+    h = np.uint64(key >> np.int64(32)) * np.uint64(0x9E3779B97F4A7C15)
+    return np.int64(((h >> np.uint64(29)) + np.uint64(key & np.int64(0xFFFFFFFF))) & np.uint64(mask))
 
 
 @njit(cache=True)
@@ -130,7 +137,7 @@ def reserve(keys, vals, meta, n: int, path: np.ndarray, agent: int, park_time: n
     """Books a path (its last cell is the robot's goal, held from then on)."""
     for t in range(path.shape[0]):
         v = path[t]
-        hm_put(keys, vals, meta, t * n + v, agent)
+        hm_put(keys, vals, meta, st_key(v, t), agent)
         keys, vals, meta = hm_fit(keys, vals, meta)
         if t > last_use[v]:
             last_use[v] = t
@@ -144,7 +151,7 @@ def reserve(keys, vals, meta, n: int, path: np.ndarray, agent: int, park_time: n
 def unreserve(keys, meta, n: int, path: np.ndarray, park_time: np.ndarray, park_owner: np.ndarray) -> None:
     """Removes a path; last_use stays an upper bound, which only makes goal checks scan further."""
     for t in range(path.shape[0]):
-        hm_del(keys, meta, t * n + path[t])
+        hm_del(keys, meta, st_key(path[t], t))
     g = path[path.shape[0] - 1]
     park_time[g] = NEVER
     park_owner[g] = -1
@@ -157,22 +164,64 @@ def _blocked(keys, vals, n: int, v: int, u: int, t: int, agent: int, park_time, 
     t1 = t + 1
     if park_time[u] <= t1 and park_owner[u] != agent:
         return True
-    if hm_get(keys, vals, t1 * n + u) >= 0:
+    if hm_get(keys, vals, st_key(u, t1)) >= 0:
         return True
     if u != v:
-        b = hm_get(keys, vals, t1 * n + v)
-        if b >= 0 and hm_get(keys, vals, t * n + u) == b:
+        b = hm_get(keys, vals, st_key(v, t1))
+        if b >= 0 and hm_get(keys, vals, st_key(u, t)) == b:
             return True  # swap
         if xs[u] != xs[v] and ys[u] != ys[v]:
             p = index[ys[v] * width + xs[u]]
             q = index[ys[u] * width + xs[v]]
-            b = hm_get(keys, vals, t * n + p)
-            if b >= 0 and hm_get(keys, vals, t1 * n + q) == b:
+            b = hm_get(keys, vals, st_key(p, t))
+            if b >= 0 and hm_get(keys, vals, st_key(q, t1)) == b:
                 return True  # crossing diagonals
-            b = hm_get(keys, vals, t * n + q)
-            if b >= 0 and hm_get(keys, vals, t1 * n + p) == b:
+            b = hm_get(keys, vals, st_key(q, t))
+            if b >= 0 and hm_get(keys, vals, st_key(p, t1)) == b:
                 return True
     return False
+
+
+@njit(cache=True)
+def _heap_push(hk, hn, hsize: int, key: int, node: int):
+    if hsize == hk.shape[0]:
+        hk = np.concatenate((hk, np.empty(hsize, dtype=np.int64)))
+        hn = np.concatenate((hn, np.empty(hsize, dtype=np.int32)))
+    i = hsize
+    while i > 0:
+        p = (i - 1) >> 1
+        if hk[p] <= key:
+            break
+        hk[i] = hk[p]
+        hn[i] = hn[p]
+        i = p
+    hk[i] = key
+    hn[i] = node
+    return hk, hn
+
+
+@njit(cache=True)
+def _heap_pop(hk, hn, hsize: int) -> None:
+    """Removes the minimum (read hk[0], hn[0] first); hsize is the size before removal."""
+    hsize -= 1
+    if hsize == 0:
+        return
+    lk = hk[hsize]
+    ln = hn[hsize]
+    i = 0
+    while True:
+        c = 2 * i + 1
+        if c >= hsize:
+            break
+        if c + 1 < hsize and hk[c + 1] < hk[c]:
+            c += 1
+        if hk[c] >= lk:
+            break
+        hk[i] = hk[c]
+        hn[i] = hn[c]
+        i = c
+    hk[i] = lk
+    hn[i] = ln
 
 
 @njit(cache=True)
@@ -186,10 +235,13 @@ def st_astar(nbr, drow, unreach: int, start: int, goal: int, agent: int, keys, v
     The robot cannot finish before the last step another robot uses its goal,
     so f = max(t + h, that step + 1): without it the search would fill the whole
     space-time volume below that step before diving.
+    Partial expansion (PEA*): a popped state generates only the successors whose
+    f equals its own and goes back into the heap with the next larger f, so the
+    side steps and waits of an unobstructed robot are never checked or stored.
     """
     n = nbr.shape[0]
     s = last_use[goal]
-    while s >= 0 and hm_get(keys, vals, s * n + goal) < 0:
+    while s >= 0 and hm_get(keys, vals, st_key(goal, s)) < 0:
         s -= 1
     last_use[goal] = s  # tightened: unreserve leaves it an upper bound
     free_from = s + 1
@@ -209,29 +261,14 @@ def st_astar(nbr, drow, unreach: int, start: int, goal: int, agent: int, keys, v
     hk[0] = np.int64(max(drow[start], free_from)) * big + (big - 1)
     hn[0] = 0
     hsize = 1
-    hm_put(sk, sv, sm, start, 0)
+    hm_put(sk, sv, sm, st_key(start, 0), 0)
     expanded = 0
+    no_more = np.int64(1) << np.int64(62)
     while hsize > 0:
-        # pop the heap minimum
         node = hn[0]
+        f = hk[0] // big
+        _heap_pop(hk, hn, hsize)
         hsize -= 1
-        if hsize > 0:
-            lk = hk[hsize]
-            ln = hn[hsize]
-            i = 0
-            while True:
-                c = 2 * i + 1
-                if c >= hsize:
-                    break
-                if c + 1 < hsize and hk[c + 1] < hk[c]:
-                    c += 1
-                if hk[c] >= lk:
-                    break
-                hk[i] = hk[c]
-                hn[i] = hn[c]
-                i = c
-            hk[i] = lk
-            hn[i] = ln
         v = nv[node]
         t = nt[node]
         if v == goal and t >= free_from:
@@ -242,10 +279,11 @@ def st_astar(nbr, drow, unreach: int, start: int, goal: int, agent: int, keys, v
                 m = npar[m]
             return path
         expanded += 1
-        if expanded > max_expand or t >= t_max:
-            if expanded > max_expand:
-                break
+        if expanded > max_expand:
+            break
+        if t >= t_max:
             continue
+        f_next = no_more
         for j in range(k + 1):
             u = v if j == k else nbr[v, j]
             if u < 0:
@@ -253,9 +291,14 @@ def st_astar(nbr, drow, unreach: int, start: int, goal: int, agent: int, keys, v
             hu = drow[u]
             if hu >= unreach:
                 continue
+            fu = max(t + 1 + hu, free_from)
+            if fu != f:
+                if fu > f and fu < f_next:
+                    f_next = fu
+                continue
             if _blocked(keys, vals, n, v, u, t, agent, park_time, park_owner, xs, ys, index, width):
                 continue
-            key = np.int64(t + 1) * n + u
+            key = st_key(u, t + 1)
             if hm_get(sk, sv, key) >= 0:
                 continue
             if nodes == nv.shape[0]:
@@ -267,22 +310,13 @@ def st_astar(nbr, drow, unreach: int, start: int, goal: int, agent: int, keys, v
             npar[nodes] = node
             hm_put(sk, sv, sm, key, nodes)
             sk, sv, sm = hm_fit(sk, sv, sm)
-            if hsize == hk.shape[0]:
-                hk = np.concatenate((hk, np.empty(hsize, dtype=np.int64)))
-                hn = np.concatenate((hn, np.empty(hsize, dtype=np.int32)))
-            fk = np.int64(max(t + 1 + hu, free_from)) * big + (big - 1 - (t + 1))
-            i = hsize
+            hk, hn = _heap_push(hk, hn, hsize, np.int64(fu) * big + (big - 1 - (t + 1)), nodes)
             hsize += 1
-            while i > 0:
-                p = (i - 1) >> 1
-                if hk[p] <= fk:
-                    break
-                hk[i] = hk[p]
-                hn[i] = hn[p]
-                i = p
-            hk[i] = fk
-            hn[i] = nodes
             nodes += 1
+        if f_next != no_more:
+            # come back for the costlier successors only if the cheaper ones lead nowhere
+            hk, hn = _heap_push(hk, hn, hsize, f_next * big + (big - 1 - t), node)
+            hsize += 1
     return np.empty(0, dtype=np.int32)
 
 
