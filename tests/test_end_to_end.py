@@ -1,5 +1,7 @@
 """The whole mission with real processes, real Zenoh on loopback, real MAVLink over UDP (MAVSDK)."""
 import json
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -80,6 +82,50 @@ def test_noisy_camera_needs_a_closer_look(tmp_path):
     _check_report(report)
     survey_images = 4  # this map at 1280x960 and 20 px per cell
     assert report["perceived"]["images"] > survey_images
+
+
+def _fleet_processes(fleet):
+    out = []
+    for p in psutil.process_iter(["cmdline"]):
+        try:
+            if fleet in " ".join(p.info["cmdline"] or []):
+                out.append(p.pid)
+        except psutil.Error:
+            pass
+    return out
+
+
+@pytest.mark.parametrize("how", ["sigint", "kill-world"])
+def test_interrupt_or_failing_part_stops_everything(how):
+    """Ctrl-C, or a part dying, stops the whole mission within seconds and leaves no process behind."""
+    proc = subprocess.Popen(CLI + ["run", "--robots", "4"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        first = proc.stdout.readline()
+        fleet = first.split("fleet ")[1].split(",")[0]
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:  # wait until the world, the UAV and the robots are all up
+            line = proc.stdout.readline()
+            if "takeoff" in line or not line:
+                break
+        if how == "sigint":
+            proc.send_signal(signal.SIGINT)
+        else:
+            world = [p for p in _fleet_processes(fleet)
+                     if "world" in " ".join(psutil.Process(p).cmdline())]
+            assert world, "no world process found"
+            os.kill(world[0], signal.SIGKILL)
+        t0 = time.monotonic()
+        code = proc.wait(timeout=20)
+        stopped_in = time.monotonic() - t0
+        assert code != 0
+        assert "Traceback" not in proc.stderr.read()
+        assert _no_survivors(_fleet_processes(fleet)) == []
+        print(f"{how}: stopped in {stopped_in:.1f} s")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
 
 
 @pytest.mark.parametrize("args, needle", [

@@ -121,9 +121,9 @@ class Launcher:
                 raise MissionError(f"mission did not finish within {timeout_s:g} s")
             time.sleep(0.05)
 
-    def stop(self) -> None:
-        """Let children finish on their own (they exit at mission end), then TERM, then KILL."""
-        deadline = time.monotonic() + GRACE_S
+    def stop(self, graceful: bool) -> None:
+        """Let children finish on their own (they exit at mission end) if `graceful`, then TERM, then KILL."""
+        deadline = time.monotonic() + (GRACE_S if graceful else 0.0)
         while time.monotonic() < deadline and any(c.proc.poll() is None for c in self.children):
             time.sleep(0.05)
         for c in self.children:
@@ -156,6 +156,7 @@ def run(args) -> int:
         get_planner(args.planner)
     launcher = Launcher(args)
     t0 = time.perf_counter()
+    code = 1
     print(f"uav-robots: map {name} ({free.shape[1]}x{free.shape[0]}), {args.robots} robots, fleet {launcher.fleet}, "
           f"zenoh {launcher.endpoint}, mavlink udp:{launcher.udp}", flush=True)
     try:
@@ -168,7 +169,7 @@ def run(args) -> int:
         print(f"error: {exc}", file=sys.stderr, flush=True)
         code = 1
     finally:
-        launcher.stop()
+        launcher.stop(graceful=code == 0)
     report_path = launcher.out / "report.json"
     if code == 0 and report_path.exists():
         report = json.loads(report_path.read_text())

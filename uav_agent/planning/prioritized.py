@@ -45,18 +45,18 @@ def now() -> float:
 # Keys are (cell << 32 | step). The slot scatters cells but keeps the steps of one cell
 # next to each other, so the lookups of one search step mostly share cache lines.
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def st_key(v: int, t: int) -> int:
     return (np.int64(v) << np.int64(32)) | np.int64(t)
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _slot(key: int, mask: int) -> int:
     h = np.uint64(key >> np.int64(32)) * np.uint64(0x9E3779B97F4A7C15)
     return np.int64(((h >> np.uint64(29)) + np.uint64(key & np.int64(0xFFFFFFFF))) & np.uint64(mask))
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def hm_get(keys: np.ndarray, vals: np.ndarray, key: int) -> int:
     mask = keys.shape[0] - 1
     s = _slot(key, mask)
@@ -69,7 +69,7 @@ def hm_get(keys: np.ndarray, vals: np.ndarray, key: int) -> int:
         s = (s + 1) & mask
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def hm_put(keys: np.ndarray, vals: np.ndarray, meta: np.ndarray, key: int, val: int) -> None:
     """Insert or overwrite; meta[0] counts used slots (live + tombstones), meta[1] live keys."""
     mask = keys.shape[0] - 1
@@ -117,11 +117,15 @@ def hm_new(capacity: int):
     return np.full(cap, EMPTY, dtype=np.int64), np.empty(cap, dtype=np.int32), np.zeros(2, dtype=np.int64)
 
 
+@njit(cache=True, inline='always')
+def hm_full(keys: np.ndarray, meta: np.ndarray) -> bool:
+    """More than half the slots used (tombstones count): time to call hm_grow."""
+    return 2 * meta[0] > keys.shape[0]
+
+
 @njit(cache=True)
-def hm_fit(keys: np.ndarray, vals: np.ndarray, meta: np.ndarray):
-    """Rehash when more than half full (tombstones count): call after every put."""
-    if 2 * meta[0] <= keys.shape[0]:
-        return keys, vals, meta
+def hm_grow(keys: np.ndarray, vals: np.ndarray, meta: np.ndarray):
+    """A fresh table holding the live keys, with room to grow."""
     nk, nv, nm = hm_new(2 * meta[1] + 16)
     for s in range(keys.shape[0]):
         if keys[s] >= 0:
@@ -138,7 +142,8 @@ def reserve(keys, vals, meta, n: int, path: np.ndarray, agent: int, park_time: n
     for t in range(path.shape[0]):
         v = path[t]
         hm_put(keys, vals, meta, st_key(v, t), agent)
-        keys, vals, meta = hm_fit(keys, vals, meta)
+        if hm_full(keys, meta):
+            keys, vals, meta = hm_grow(keys, vals, meta)
         if t > last_use[v]:
             last_use[v] = t
     g = path[path.shape[0] - 1]
@@ -157,7 +162,7 @@ def unreserve(keys, meta, n: int, path: np.ndarray, park_time: np.ndarray, park_
     park_owner[g] = -1
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _blocked(keys, vals, n: int, v: int, u: int, t: int, agent: int, park_time, park_owner,
              xs, ys, index, width: int) -> bool:
     """Whether moving v -> u between steps t and t+1 conflicts with a reservation."""
@@ -183,10 +188,14 @@ def _blocked(keys, vals, n: int, v: int, u: int, t: int, agent: int, park_time, 
 
 
 @njit(cache=True)
-def _heap_push(hk, hn, hsize: int, key: int, node: int):
-    if hsize == hk.shape[0]:
-        hk = np.concatenate((hk, np.empty(hsize, dtype=np.int64)))
-        hn = np.concatenate((hn, np.empty(hsize, dtype=np.int32)))
+def _heap_grow(hk, hn):
+    return (np.concatenate((hk, np.empty(hk.shape[0], dtype=np.int64))),
+            np.concatenate((hn, np.empty(hn.shape[0], dtype=np.int32))))
+
+
+@njit(cache=True, inline='always')
+def _heap_push(hk, hn, hsize: int, key: int, node: int) -> None:
+    """Adds (key, node); the caller makes sure hsize < capacity."""
     i = hsize
     while i > 0:
         p = (i - 1) >> 1
@@ -197,10 +206,9 @@ def _heap_push(hk, hn, hsize: int, key: int, node: int):
         i = p
     hk[i] = key
     hn[i] = node
-    return hk, hn
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _heap_pop(hk, hn, hsize: int) -> None:
     """Removes the minimum (read hk[0], hn[0] first); hsize is the size before removal."""
     hsize -= 1
@@ -309,13 +317,18 @@ def st_astar(nbr, drow, unreach: int, start: int, goal: int, agent: int, keys, v
             nt[nodes] = t + 1
             npar[nodes] = node
             hm_put(sk, sv, sm, key, nodes)
-            sk, sv, sm = hm_fit(sk, sv, sm)
-            hk, hn = _heap_push(hk, hn, hsize, np.int64(fu) * big + (big - 1 - (t + 1)), nodes)
+            if hm_full(sk, sm):
+                sk, sv, sm = hm_grow(sk, sv, sm)
+            if hsize == hk.shape[0]:
+                hk, hn = _heap_grow(hk, hn)
+            _heap_push(hk, hn, hsize, np.int64(fu) * big + (big - 1 - (t + 1)), nodes)
             hsize += 1
             nodes += 1
         if f_next != no_more:
             # come back for the costlier successors only if the cheaper ones lead nowhere
-            hk, hn = _heap_push(hk, hn, hsize, f_next * big + (big - 1 - t), node)
+            if hsize == hk.shape[0]:
+                hk, hn = _heap_grow(hk, hn)
+            _heap_push(hk, hn, hsize, f_next * big + (big - 1 - t), node)
             hsize += 1
     return np.empty(0, dtype=np.int32)
 
