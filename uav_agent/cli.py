@@ -69,19 +69,26 @@ def _run_uav(a) -> int:
     return 0 if report["completed"] else 1
 
 
-def build_parser() -> argparse.ArgumentParser:
+# Subcommands defined beside the code they run, imported only when chosen: a robot
+# process should not pay for scipy and OpenCV it never uses.
+_ELSEWHERE = {
+    "world": ("sim_world.world", "add_world_parser"),
+    "robot": ("robot_agents.agent", "add_robot_parser"),
+    "plan": ("uav_agent.plan_cli", "add_plan_parser"),
+    "bench": ("uav_agent.plan_cli", "add_bench_parser"),
+}
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    import importlib
+
     parser = argparse.ArgumentParser(prog="uav-robots", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     _add_run(sub)
     _add_uav(sub)
-    from robot_agents.agent import add_robot_parser
-    from sim_world.world import add_world_parser
-    from uav_agent.plan_cli import add_bench_parser, add_plan_parser
-
-    add_world_parser(sub)
-    add_robot_parser(sub)
-    add_plan_parser(sub)
-    add_bench_parser(sub)
+    for name, (module, adder) in _ELSEWHERE.items():
+        if command in (None, name):
+            getattr(importlib.import_module(module), adder)(sub)
     return parser
 
 
@@ -92,7 +99,9 @@ def _on_sigterm(signum, frame) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, _on_sigterm)
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    command = argv[0] if argv and argv[0] in _ELSEWHERE else None
+    args = build_parser(command).parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except MissionError as exc:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import secrets
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -128,6 +129,8 @@ class Mission:
                                   lambda: f"no world on fleet {self.cfg.fleet} within {self.cfg.startup_timeout_s:g} s")
             info = _query(self.transport, self.keys.world_info, WorldInfoRequest(seq=self._next()), WorldInfo, "info")
             self.info = info
+            self._warm = threading.Thread(target=self._warm_up_planner, name="planner-warm-up", daemon=True)
+            self._warm.start()
             self.flight = Flight(self.cfg.mavlink_url)
             self.flight.connect(timeout_s=self.cfg.startup_timeout_s)
             self.clock.lap("connect")
@@ -154,6 +157,15 @@ class Mission:
                 self.fleet.close()
             self.transport.close()
             self.progress.close()
+
+    def _warm_up_planner(self) -> None:
+        from .planning.pipeline import warm_up
+        from .planning.registry import DEFAULT_PLANNER
+
+        try:
+            warm_up(self.cfg.planner or DEFAULT_PLANNER, self.cfg.connectivity)
+        except Exception:  # noqa: BLE001 - the real plan call reports any problem properly
+            pass
 
     def _fly_and_survey(self) -> None:
         from .survey import survey_poses
@@ -232,6 +244,7 @@ class Mission:
 
         ids = sorted(model.robots)
         planner = self.cfg.planner or DEFAULT_PLANNER
+        self._warm.join()
         self._status("plan", message=f"{len(ids)} robots, planner {planner}, assignment {self.cfg.assign}")
         result = plan_mission(model.free, [model.robots[i] for i in ids], list(model.goals), planner=planner,
                               assign=self.cfg.assign, connectivity=self.cfg.connectivity,

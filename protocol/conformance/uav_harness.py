@@ -41,6 +41,7 @@ PLACEHOLDERS = "{fleet} {endpoint} {mavlink} {mavlink_port} {robots} {tick_timeo
 MOVE_TIMEOUT_S = 5.0    # the contract's robot-side move query timeout
 SETTLE_S = 2.0          # after the UAV exits: the longest wait for its last messages and token to arrive
 ABORT_SLACK_S = 10.0    # beyond the tick timeout, for a failing UAV to say so, end the mission and exit
+LATE_JOIN_S = 3.0       # after the UAV's token: when a late robot comes up, unless the UAV dispatches earlier
 
 
 @dataclass(frozen=True)
@@ -51,7 +52,7 @@ class UavOptions:
     robots: int = 3
     seed: int = 0
     time_scale: float = 10.0
-    tick_timeout_s: float = 2.0
+    tick_timeout_s: float = 3.0
     mission_timeout_s: float = 60.0
     connectivity: int = 4
 
@@ -205,6 +206,10 @@ class Observed:
 
     def of(self, *kinds: str) -> list[str]:
         return [text for kind, text in self.violations if kind in kinds]
+
+    def __repr__(self) -> str:  # short: pytest prints it in every failed assertion that mentions it
+        return (f"Observed({len(self.plans)} plans, {len(self.ticks)} ticks, {len(self.ends)} ends, "
+                f"{len(self.acks)} acks, {len(self.dones)} dones, {len(self.violations)} violations)")
 
 
 class FakeFleet(Waiter):
@@ -478,6 +483,9 @@ class MissionRun:
     def seconds(self) -> float:
         return self.exited - self.started
 
+    def __repr__(self) -> str:
+        return f"MissionRun(exit {self.code}, {self.seconds:.1f} s, {self.log!r})"
+
     def tail(self, chars: int = 2500) -> str:
         return f"--- UAV stdout ---\n{self.stdout[-chars:]}\n--- UAV stderr ---\n{self.stderr[-chars:]}"
 
@@ -490,7 +498,7 @@ class MissionRun:
         return out
 
 
-def run_mission(opts: UavOptions, behaviour: Misbehaviour, workdir: Path, late_join_s: float = 20.0) -> MissionRun:
+def run_mission(opts: UavOptions, behaviour: Misbehaviour, workdir: Path, late_join_s: float = LATE_JOIN_S) -> MissionRun:
     """Start router, world, robots and the UAV under test; run until the UAV exits; stop everything."""
     workdir.mkdir(parents=True, exist_ok=True)
     out, err = workdir / "uav.stdout", workdir / "uav.stderr"
@@ -527,11 +535,17 @@ def run_mission(opts: UavOptions, behaviour: Misbehaviour, workdir: Path, late_j
 def _drive(proc: subprocess.Popen, fleet: FakeFleet, behaviour: Misbehaviour, deadline: float,
            late_join_s: float) -> int | None:
     if behaviour.late:
-        # Late robots come up once the UAV is ready to dispatch (or after `late_join_s` at the latest),
-        # after a pause in which a UAV that does not wait for tokens would already have sent their plans.
-        fleet.until(lambda: fleet.dispatching() or proc.poll() is not None,
-                    min(late_join_s, max(0.0, deadline - time.monotonic())))
-        time.sleep(0.5)
+        # Late robots come up once the UAV is ready to dispatch (status phase or a first plan), or
+        # `late_join_s` after its token appeared: a UAV that does not wait for the robots' tokens has
+        # usually sent its plans by then, and one that waits (before perceiving, or before dispatching)
+        # is kept waiting.
+        def due() -> bool:
+            ups = [t for t, alive in fleet.log.uav_alive if alive]
+            return (fleet.dispatching() or proc.poll() is not None
+                    or (bool(ups) and time.monotonic() >= ups[0] + late_join_s))
+        fleet.until(due, max(0.0, deadline - time.monotonic()))
+        if fleet.dispatching():
+            time.sleep(0.5)  # the window in which a UAV that does not wait would send the late robots' plans
         for rid in sorted(behaviour.late):
             fleet.join(rid)
     try:

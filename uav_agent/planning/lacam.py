@@ -25,8 +25,9 @@ from numba import njit
 from protocol.errors import PlanningError
 
 from .distances import Instance, compile_problem
-from .pibt import _crosses, degrees, history_to_paths, initial_priorities, pibt_step, rand_next, update_priorities
-from .prioritized import (hm_get, hm_new, st_key, kernel_args, max_expansions, now, plan_prioritized, reserve,
+from .pibt import (_crosses, degrees, history_to_paths, initial_priorities, pibt, pibt_step, rand_next,
+                   update_priorities)
+from .prioritized import (guide_paths, hm_get, hm_new, st_key, kernel_args, max_expansions, now, reserve,
                           split_paths, st_astar, unreserve)
 from .types import Limits, Path, Problem
 
@@ -102,8 +103,11 @@ def _grow1(a: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def _search(nbr, deg, dist, rows, starts, goals, prio0, xs, ys, index, width: int, diagonal: bool, swap: bool,
-            deadline: float, seed: int, max_nodes: int):
+            deadline: float, seed: int, max_nodes: int, gbuf, goff, glen):
     """LaCAM's high-level search: (status, configurations from start to goal [T, n]).
+
+    Guide paths (robot i: gbuf[goff[i]:goff[i]+glen[i]], glen 0 = none) steer PIBT: a
+    robot that is where its guide says at a node's depth tries the guide's next cell first.
 
     status 0 solved, 1 proved unsolvable (search space exhausted), 2 time limit, 3 node cap."""
     n = nbr.shape[0]
@@ -114,6 +118,7 @@ def _search(nbr, deg, dist, rows, starts, goals, prio0, xs, ys, index, width: in
     cfg = np.empty((cap, na), dtype=np.int32)
     prio = np.empty((cap, na), dtype=np.float32)
     parent = np.empty(cap, dtype=np.int32)
+    depth = np.empty(cap, dtype=np.int32)
     q_head = np.empty(cap, dtype=np.int32)    # queue of low-level nodes to try
     q_tail = np.empty(cap, dtype=np.int32)
     # low-level (constraint) nodes
@@ -140,11 +145,17 @@ def _search(nbr, deg, dist, rows, starts, goals, prio0, xs, ys, index, width: in
     q_to = np.empty(na, dtype=np.int32)
     cands = np.empty(k, dtype=np.int32)
     p_new = np.empty(na, dtype=np.float64)
+    pref = np.full(na, -1, dtype=np.int32)
+    guided = False
+    for i in range(na):
+        if glen[i] > 0:
+            guided = True
 
     cfg[0] = starts
     for i in range(na):
         prio[0, i] = prio0[i]
     parent[0] = -1
+    depth[0] = 0
     l_parent[0] = -1
     l_who[0] = -1
     l_where[0] = -1
@@ -242,9 +253,19 @@ def _search(nbr, deg, dist, rows, starts, goals, prio0, xs, ys, index, width: in
                     ok = False
                     break
                 c = l_parent[c]
+        if ok and guided:
+            t = depth[h]
+            for i in range(na):
+                pref[i] = -1
+                if glen[i] > 0:
+                    if t + 1 < glen[i]:
+                        if q_from[i] == gbuf[goff[i] + t]:
+                            pref[i] = gbuf[goff[i] + t + 1]
+                    elif q_from[i] == goals[i]:
+                        pref[i] = goals[i]
         if ok:
             ok = pibt_step(nbr, deg, dist, rows, goals, q_from, q_to, order, occ_now, occ_nxt, xs, ys, index,
-                           width, diagonal, swap, st_agent, st_pos, st_nc, st_cand, st_swap, rng)
+                           width, diagonal, swap, st_agent, st_pos, st_nc, st_cand, st_swap, rng, pref)
         else:
             for i in range(na):
                 if q_to[i] >= 0:
@@ -269,6 +290,7 @@ def _search(nbr, deg, dist, rows, starts, goals, prio0, xs, ys, index, width: in
             cfg = _grow2(cfg, nodes)
             prio = _grow2(prio, nodes)
             parent = _grow1(parent)
+            depth = _grow1(depth)
             q_head = _grow1(q_head)
             q_tail = _grow1(q_tail)
         cfg[nodes] = q_to
@@ -278,6 +300,7 @@ def _search(nbr, deg, dist, rows, starts, goals, prio0, xs, ys, index, width: in
         for i in range(na):
             prio[nodes, i] = p_new[i]
         parent[nodes] = h
+        depth[nodes] = depth[h] + 1
         # a fresh root constraint (no robot fixed yet) for the new configuration
         if lnodes == l_parent.shape[0]:
             l_parent = _grow1(l_parent)
@@ -314,12 +337,18 @@ def _search(nbr, deg, dist, rows, starts, goals, prio0, xs, ys, index, width: in
     return 0, out
 
 
-def search(inst: Instance, limits: Limits, max_nodes: int = 2**31 - 1, swap: bool = True) -> np.ndarray:
-    """LaCAM's search alone: configurations [T, n] (compact ids) from the starts to the goals."""
+def search(inst: Instance, limits: Limits, max_nodes: int = 2**31 - 1, swap: bool = True,
+           guides: tuple | None = None) -> np.ndarray:
+    """LaCAM's search alone: configurations [T, n] (compact ids) from the starts to the goals.
+
+    `guides` = (flat paths, offsets, lengths) of cell ids, e.g. from `guide_paths`.
+    """
     nbr, xs, ys, index, width = kernel_args(inst)
+    if guides is None:
+        guides = (np.zeros(1, np.int32), np.zeros(inst.n, np.int64), np.zeros(inst.n, np.int64))
     status, hist = _search(nbr, degrees(nbr), inst.table.dist, inst.rows, inst.starts, inst.goals,
                            initial_priorities(inst), xs, ys, index, width, inst.problem.connectivity == 8, swap,
-                           time.perf_counter() + limits.remaining(), inst.problem.seed, max_nodes)
+                           time.perf_counter() + limits.remaining(), inst.problem.seed, max_nodes, *guides)
     if status == 1:
         raise PlanningError(f"lacam: no solution exists for these {inst.n} robots (every configuration explored)")
     if status == 2:
@@ -329,10 +358,10 @@ def search(inst: Instance, limits: Limits, max_nodes: int = 2**31 - 1, swap: boo
     return hist
 
 
-# Prioritized planning is tried first only where robots are sparse: it is near-optimal there,
-# while in crowded corridors its failures cost more than LaCAM's whole search.
-PRIORITIZED_DENSITY = 0.05
-PRIORITIZED_SHARE = 0.5        # at most this share of the time limit goes to the prioritized try
+# Robots are first routed one by one (prioritized planning, skipping those it cannot route)
+# when they are sparse enough for that to be cheap; beyond this density LaCAM runs unguided.
+GUIDE_DENSITY = 0.05
+GUIDE_SHARE = 0.5              # at most this share of the time limit goes to the guide paths
 # refinement runs for REFINE_FACTOR x the time the first solution took (at least REFINE_MIN s)
 REFINE_FACTOR = 1.0
 REFINE_MIN = 0.05
@@ -340,22 +369,29 @@ REFINE_TARGET = 1.005         # stop refining once the sum of costs is within 0.
 
 
 def lacam(problem: Problem, limits: Limits) -> list[Path]:
-    """The default planner: prioritized planning when sparse, else LaCAM; then a short refinement.
+    """The default planner: complete, fast, near-optimal on sparse instances.
 
-    Complete (LaCAM is the backstop); PlanningError only when no plan is found within the limit.
+    1. guide paths: one prioritized pass; when it routes every robot, that is the plan;
+    2. otherwise LaCAM, its PIBT steered by the guide paths of the robots that were routed
+       (unguided when too dense), which keeps LaCAM's completeness;
+    3. a short large-neighbourhood refinement of the sum of costs.
     """
     started = time.perf_counter()
     inst = compile_problem(problem)
     if inst.n == 0:
         return []
-    solution = None
-    if inst.n <= PRIORITIZED_DENSITY * inst.graph.n:
-        share = Limits(min(limits.remaining(), PRIORITIZED_SHARE * limits.seconds))
-        ok, buf, poff, plen, _, _ = plan_prioritized(inst, share, max_tries=2)
-        if ok:
-            solution = buf, poff, plen
+    solution = guides = None
+    if inst.n <= GUIDE_DENSITY * inst.graph.n:
+        share = Limits(min(limits.remaining(), GUIDE_SHARE * limits.seconds))
+        found = guide_paths(inst, share, max_expansions(inst))
+        if found is not None:
+            buf, poff, plen, complete = found
+            if complete:
+                solution = buf, poff, plen
+            else:
+                guides = buf, poff, plen
     if solution is None:
-        solution = trimmed(inst, search(inst, limits))
+        solution = trimmed(inst, search(inst, limits, guides=guides))
     buf, poff, plen = solution
     budget = min(limits.remaining(), max(REFINE_MIN, REFINE_FACTOR * (time.perf_counter() - started)))
     if budget > 0 and (plen - 1).sum() > REFINE_TARGET * inst.lower_bound():
@@ -397,6 +433,8 @@ def _refine(nbr, dist, rows, unreach: int, starts, goals, d0, buf, poff, plen, x
     tmp_len = np.empty(group, dtype=np.int64)
     tmp = np.empty(1024, dtype=np.int32)
     fails = np.zeros(na, dtype=np.int32)    # recent fruitless tries per robot, to spread the effort
+    stamp = np.zeros(n + 1, dtype=np.int32)
+    queue = np.empty(n, dtype=np.int32)
     it = 0
     stale = 0
     while soc > target:
@@ -482,10 +520,19 @@ def _refine(nbr, dist, rows, unreach: int, starts, goals, d0, buf, poff, plen, x
         new = 0
         filled = 0
         done = 0
+        rest = 0
+        for j in range(m):
+            rest += d0[members[j]]
         for j in range(m):
             b = members[j]
+            rest -= d0[b]
+            # only paths that can still make the group cheaper are worth finding
+            f_max = old - 1 - new - rest
+            if f_max < d0[b]:
+                ok = False
+                break
             path = st_astar(nbr, dist[rows[b]], unreach, starts[b], goals[b], b, keys, vals, park_time, park_owner,
-                            last_use, xs, ys, index, width, max_expand, horizon + n + 1)
+                            last_use, xs, ys, index, width, max_expand, horizon + n + 1, f_max, stamp, queue)
             if path.shape[0] == 0:
                 ok = False
                 break
@@ -558,3 +605,23 @@ def refine(inst: Instance, buf, poff, plen, seconds: float, target_ratio: float 
     return _refine(nbr, inst.table.dist, inst.rows, inst.table.unreachable, inst.starts, inst.goals, d0,
                    buf, poff.copy(), plen.copy(), xs, ys, index, width, max_expansions(inst),
                    time.perf_counter() + seconds, target, inst.problem.seed, group)
+
+
+def warm_up() -> float:
+    """Loads every kernel (compiling it the first time numba sees this code) on a tiny problem,
+    so that no real call, and no refinement budget derived from its duration, pays for that.
+    Returns the seconds it took."""
+    began = time.perf_counter()
+    free = np.ones((6, 6), dtype=bool)
+    free[2:4, 1:5] = False
+    for conn in (4, 8):
+        problem = Problem(free, [(0, 0), (5, 5), (0, 5)], [(5, 5), (0, 0), (5, 0)], connectivity=conn)
+        inst = compile_problem(problem)
+        guide_paths(inst, Limits(600.0), 1000)
+        buf, poff, plen = trimmed(inst, search(inst, Limits(600.0)))
+        refine(inst, buf, poff, plen, 0.001)
+        pibt(problem, Limits(600.0))
+    return time.perf_counter() - began
+
+
+WARM_UP_SECONDS = warm_up()

@@ -36,8 +36,9 @@ def rand_next(state: np.ndarray) -> int:
 
 
 @njit(cache=True)
-def _candidates(nbr, drow, v: int, occ_now, out: np.ndarray, rng: np.ndarray) -> int:
-    """Neighbours of v and v itself, nearest to the goal first; ties prefer free cells, then random."""
+def _candidates(nbr, drow, v: int, occ_now, out: np.ndarray, rng: np.ndarray, pref: int) -> int:
+    """Neighbours of v and v itself, `pref` first, then nearest to the goal first; ties prefer
+    free cells, then random."""
     k = nbr.shape[1]
     keys = np.empty(k + 1, dtype=np.int64)
     m = 0
@@ -47,6 +48,8 @@ def _candidates(nbr, drow, v: int, occ_now, out: np.ndarray, rng: np.ndarray) ->
             continue
         key = (np.int64(drow[u]) << np.int64(26)) + (np.int64(1 << 25) if occ_now[u] >= 0 else 0) \
             + (rand_next(rng) & np.int64((1 << 24) - 1))
+        if u == pref:
+            key = -1
         # insertion sort: at most 9 entries
         i = m
         while i > 0 and keys[i - 1] > key:
@@ -165,10 +168,10 @@ def _swap_agent(i: int, best: int, q_from, q_to, nbr, deg, dist, rows, occ_now, 
 
 @njit(cache=True)
 def _open_frame(d: int, i: int, nbr, deg, dist, rows, goals, q_from, q_to, occ_now, st_agent, st_pos, st_nc,
-                st_cand, st_swap, rng, swap: bool) -> None:
+                st_cand, st_swap, rng, swap: bool, pref) -> None:
     st_agent[d] = i
     st_pos[d] = 0
-    m = _candidates(nbr, dist[rows[i]], q_from[i], occ_now, st_cand[d], rng)
+    m = _candidates(nbr, dist[rows[i]], q_from[i], occ_now, st_cand[d], rng, pref[i])
     st_nc[d] = m
     st_swap[d] = -1
     if swap:
@@ -183,10 +186,10 @@ def _open_frame(d: int, i: int, nbr, deg, dist, rows, goals, q_from, q_to, occ_n
 
 @njit(cache=True)
 def _pibt(root: int, nbr, deg, dist, rows, goals, q_from, q_to, occ_now, occ_nxt, xs, ys, index, width: int,
-          diagonal: bool, swap: bool, st_agent, st_pos, st_nc, st_cand, st_swap, rng) -> bool:
+          diagonal: bool, swap: bool, st_agent, st_pos, st_nc, st_cand, st_swap, rng, pref) -> bool:
     """PIBT's recursive call for `root`, written with an explicit stack (recursion depth can reach n)."""
     _open_frame(0, root, nbr, deg, dist, rows, goals, q_from, q_to, occ_now, st_agent, st_pos, st_nc, st_cand,
-                st_swap, rng, swap)
+                st_swap, rng, swap, pref)
     d = 1
     result = -1          # -1: nothing returned yet, 0: child failed, 1: child succeeded
     while d > 0:
@@ -213,7 +216,7 @@ def _pibt(root: int, nbr, deg, dist, rows, goals, q_from, q_to, occ_now, occ_nxt
                 occ_nxt[v] = i
                 if j >= 0 and j != i and q_to[j] < 0:
                     _open_frame(d, j, nbr, deg, dist, rows, goals, q_from, q_to, occ_now, st_agent, st_pos,
-                                st_nc, st_cand, st_swap, rng, swap)
+                                st_nc, st_cand, st_swap, rng, swap, pref)
                     d += 1
                     pushed = True
                 break
@@ -238,9 +241,10 @@ def _pibt(root: int, nbr, deg, dist, rows, goals, q_from, q_to, occ_now, occ_nxt
 
 @njit(cache=True)
 def pibt_step(nbr, deg, dist, rows, goals, q_from, q_to, order, occ_now, occ_nxt, xs, ys, index, width: int,
-              diagonal: bool, swap: bool, st_agent, st_pos, st_nc, st_cand, st_swap, rng) -> bool:
+              diagonal: bool, swap: bool, st_agent, st_pos, st_nc, st_cand, st_swap, rng, pref) -> bool:
     """Fills q_to (entries already >= 0 are fixed constraints, with occ_nxt set for them).
 
+    pref[i] >= 0 is a cell robot i tries first (a guide path's next cell).
     occ_now must map q_from's cells to their robots; occ_now and occ_nxt are
     restored to all -1 before returning. False when a robot cannot move.
     """
@@ -249,7 +253,7 @@ def pibt_step(nbr, deg, dist, rows, goals, q_from, q_to, order, occ_now, occ_nxt
         i = order[r]
         if q_to[i] < 0:
             if not _pibt(i, nbr, deg, dist, rows, goals, q_from, q_to, occ_now, occ_nxt, xs, ys, index, width,
-                         diagonal, swap, st_agent, st_pos, st_nc, st_cand, st_swap, rng):
+                         diagonal, swap, st_agent, st_pos, st_nc, st_cand, st_swap, rng, pref):
                 ok = False
                 break
     for i in range(q_from.shape[0]):
@@ -284,6 +288,7 @@ def _run(nbr, deg, dist, rows, starts, goals, prio, xs, ys, index, width: int, d
     st_nc = np.empty(na, dtype=np.int32)
     st_cand = np.empty((na, k), dtype=np.int32)
     st_swap = np.empty(na, dtype=np.int32)
+    pref = np.full(na, -1, dtype=np.int32)
     rng = np.array([np.uint64(seed) * np.uint64(2654435761) + np.uint64(88172645463325252)], dtype=np.uint64)
     q_to = np.empty(na, dtype=np.int32)
     t = 0
@@ -305,7 +310,7 @@ def _run(nbr, deg, dist, rows, starts, goals, prio, xs, ys, index, width: int, d
         q_to[:] = -1
         order = np.argsort(-prio)
         pibt_step(nbr, deg, dist, rows, goals, q_from, q_to, order, occ_now, occ_nxt, xs, ys, index, width,
-                  diagonal, swap, st_agent, st_pos, st_nc, st_cand, st_swap, rng)
+                  diagonal, swap, st_agent, st_pos, st_nc, st_cand, st_swap, rng, pref)
         for i in range(na):
             occ_now[q_from[i]] = -1
         if t + 1 == hist.shape[0]:

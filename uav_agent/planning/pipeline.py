@@ -167,3 +167,16 @@ def plan_mission(free: np.ndarray, starts: list[Cell], goals: list[Cell], *,
     return PlanResult(starts=starts, goals=assigned, assignment=order, paths=paths, planner=used,
                       requested=planner, assign=assign, connectivity=connectivity, fell_back=fell_back,
                       notes=notes, timings=timings, metrics=metrics)
+
+
+def warm_up(planner: str = DEFAULT_PLANNER, connectivity: int = 4) -> float:
+    """Compile the planner's numba kernels (or load them from the on-disk cache) on a tiny instance.
+
+    The UAV calls this on a background thread while it takes off, so the first
+    mission on a fresh machine does not pay the compile inside its plan phase.
+    """
+    t = time.perf_counter()
+    free = np.ones((6, 6), dtype=bool)
+    plan_mission(free, [(0, 0), (5, 5)], [(5, 5), (0, 0)], planner=planner, connectivity=connectivity,
+                 time_limit=600.0, fallback=True)
+    return time.perf_counter() - t

@@ -32,6 +32,8 @@ EMPTY = -1
 TOMB = -2
 NEVER = np.iinfo(np.int32).max   # park time of a cell nobody parks on
 MAX_TRIES = 100                  # orders tried before prioritized planning gives up
+REPAIR_GROUP = 12                # robots a blocked robot may displace (replanned after it)
+WALL_CELLS = 400                 # ... among them robots parked around its start or goal (cells searched)
 
 
 @njit(cache=True)
@@ -233,10 +235,47 @@ def _heap_pop(hk, hn, hsize: int) -> None:
 
 
 @njit(cache=True)
+def parked_reach(start: int, goal: int, agent: int, nbr, park_time, park_owner, stamp, queue) -> bool:
+    """A relaxation of the space-time search: can the robot reach its goal at all, ignoring
+    moving robots but not the parked ones (a cell can be entered only before its robot parks
+    there)? False proves that no space-time path exists."""
+    stamp[0] += 1
+    mark = stamp[0]
+    vis = stamp[1:]
+    vis[start] = mark
+    queue[0] = start
+    head = 0
+    tail = 1
+    t = 0
+    level_end = 1
+    while head < tail:
+        if head == level_end:
+            t += 1
+            level_end = tail
+        v = queue[head]
+        head += 1
+        if v == goal:
+            return True
+        for j in range(nbr.shape[1]):
+            u = nbr[v, j]
+            if u < 0:
+                break
+            if vis[u] == mark:
+                continue
+            if park_owner[u] >= 0 and park_owner[u] != agent and park_time[u] <= t + 1:
+                continue
+            vis[u] = mark
+            queue[tail] = u
+            tail += 1
+    return False
+
+
+@njit(cache=True)
 def st_astar(nbr, drow, unreach: int, start: int, goal: int, agent: int, keys, vals,
              park_time, park_owner, last_use, xs, ys, index, width: int,
-             max_expand: int, t_max: int) -> np.ndarray:
-    """Space-time A* from (start, 0) to goal; returns the cell ids per step, or an empty array.
+             max_expand: int, t_max: int, f_max: int, stamp, queue) -> np.ndarray:
+    """Space-time A* from (start, 0) to goal; returns the cell ids per step, or an empty array
+    (no path arriving by step f_max, or more than max_expand expansions).
 
     Every step costs 1 and (cell, step) determines the cost so far, so a state is
     generated at most once. Ties on f go to the deeper state (closer to the goal).
@@ -246,6 +285,8 @@ def st_astar(nbr, drow, unreach: int, start: int, goal: int, agent: int, keys, v
     Partial expansion (PEA*): a popped state generates only the successors whose
     f equals its own and goes back into the heap with the next larger f, so the
     side steps and waits of an unobstructed robot are never checked or stored.
+    A search that drags on first checks `parked_reach`, so that a robot walled in by
+    parked robots fails fast. stamp (n+1) and queue (n) are scratch arrays for that check.
     """
     n = nbr.shape[0]
     s = last_use[goal]
@@ -271,10 +312,13 @@ def st_astar(nbr, drow, unreach: int, start: int, goal: int, agent: int, keys, v
     hsize = 1
     hm_put(sk, sv, sm, st_key(start, 0), 0)
     expanded = 0
+    check_at = 2 * drow[start] + 500
     no_more = np.int64(1) << np.int64(62)
     while hsize > 0:
         node = hn[0]
         f = hk[0] // big
+        if f > f_max:
+            break
         _heap_pop(hk, hn, hsize)
         hsize -= 1
         v = nv[node]
@@ -288,6 +332,8 @@ def st_astar(nbr, drow, unreach: int, start: int, goal: int, agent: int, keys, v
             return path
         expanded += 1
         if expanded > max_expand:
+            break
+        if expanded == check_at and not parked_reach(start, goal, agent, nbr, park_time, park_owner, stamp, queue):
             break
         if t >= t_max:
             continue
@@ -334,9 +380,102 @@ def st_astar(nbr, drow, unreach: int, start: int, goal: int, agent: int, keys, v
 
 
 @njit(cache=True)
+def _walls(a: int, src: int, nbr, park_owner, planned, out, m: int, stamp, queue) -> int:
+    """Adds to out[m:] the robots parked on the rim of the region around src that is not
+    parked on (breadth-first, nearest first, a few hundred cells at most)."""
+    stamp[0] += 1
+    mark = stamp[0]
+    vis = stamp[1:]
+    vis[src] = mark
+    queue[0] = src
+    head = 0
+    tail = 1
+    while head < tail and tail < WALL_CELLS and m < out.shape[0]:
+        v = queue[head]
+        head += 1
+        for j in range(nbr.shape[1]):
+            u = nbr[v, j]
+            if u < 0:
+                break
+            if vis[u] == mark:
+                continue
+            vis[u] = mark
+            b = park_owner[u]
+            if b >= 0 and b != a:
+                if planned[b] and m < out.shape[0]:
+                    new = True
+                    for k in range(m):
+                        if out[k] == b:
+                            new = False
+                    if new:
+                        out[m] = b
+                        m += 1
+                continue
+            queue[tail] = u
+            tail += 1
+    return m
+
+
+@njit(cache=True)
+def blockers(a: int, nbr, drow, start: int, goal: int, keys, vals, park_time, park_owner, planned,
+             out: np.ndarray, rng, stamp, queue) -> int:
+    """Robots in the way of robot a: those parked around its goal or start, then along one of
+    its shortest paths (random ties) those that hold a cell at the matching step or the next
+    one, or park on it. Returns how many (<= out.size)."""
+    m = 0
+    # robots parked around a's goal or start may wall them in: they come first
+    for src in (goal, start):
+        m = _walls(a, src, nbr, park_owner, planned, out, m, stamp, queue)
+    v = start
+    t = 0
+    while m < out.shape[0]:
+        for dt in range(2):
+            b = hm_get(keys, vals, st_key(v, t + dt))
+            if b >= 0 and b != a and planned[b]:
+                new = True
+                for j in range(m):
+                    if out[j] == b:
+                        new = False
+                if new and m < out.shape[0]:
+                    out[m] = b
+                    m += 1
+        b = park_owner[v]
+        if b >= 0 and b != a and planned[b]:
+            new = True
+            for j in range(m):
+                if out[j] == b:
+                    new = False
+            if new and m < out.shape[0]:
+                out[m] = b
+                m += 1
+        if v == goal:
+            break
+        nxt = -1
+        cnt = 0
+        for j in range(nbr.shape[1]):
+            u = nbr[v, j]
+            if u < 0:
+                break
+            if drow[u] < drow[v]:
+                cnt += 1
+                rng[0] = rng[0] * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
+                if np.int64(rng[0] >> np.uint64(33)) % cnt == 0:
+                    nxt = u
+        v = nxt
+        t += 1
+    return m
+
+
+@njit(cache=True)
 def _plan_in_order(nbr, dist, rows, unreach: int, starts, goals, order, xs, ys, index, width: int,
-                   max_expand: int, deadline: float):
-    """Plans robots in `order`; returns (failed robot or -1 or -2 on timeout, flat paths, offsets, lengths)."""
+                   max_expand: int, deadline: float, skip_failures: bool):
+    """Plans robots in `order`: (first failed robot, or -1, or -2 on timeout; flat paths, offsets, lengths).
+
+    A robot that finds no path gets one repair: the planned robots in its way are taken out,
+    it is planned, and they are planned again after it; if that fails too, everything is put
+    back. With skip_failures a robot still without a path gets length 0 and the others are
+    planned; without, planning stops there.
+    """
     n = nbr.shape[0]
     na = starts.shape[0]
     keys, vals, meta = hm_new(1024)
@@ -345,29 +484,98 @@ def _plan_in_order(nbr, dist, rows, unreach: int, starts, goals, order, xs, ys, 
     last_use = np.full(n, -1, dtype=np.int32)
     poff = np.zeros(na, dtype=np.int64)
     plen = np.zeros(na, dtype=np.int64)
+    planned = np.zeros(na, dtype=np.bool_)
+    rank = np.full(na, na, dtype=np.int32)
+    for r in range(order.shape[0]):
+        rank[order[r]] = r
     buf = np.empty(1024, dtype=np.int32)
+    group = np.empty(REPAIR_GROUP, dtype=np.int32)
+    old_off = np.empty(REPAIR_GROUP, dtype=np.int64)
+    old_len = np.empty(REPAIR_GROUP, dtype=np.int64)
+    rng = np.array([np.uint64(12345)], dtype=np.uint64)
+    stamp = np.zeros(n + 1, dtype=np.int32)     # [0] the current mark, [1:] a mark per cell
+    queue = np.empty(n, dtype=np.int32)
     used = 0
     horizon = 0
-    for r in range(na):
+    first_failed = -1
+    for r in range(order.shape[0]):
         if now() > deadline:
             return -2, buf, poff, plen
         a = order[r]
-        drow = dist[rows[a]]
         # after the last reserved step the world is static; nothing beyond a full sweep helps
         t_max = horizon + n + 1
-        path = st_astar(nbr, drow, unreach, starts[a], goals[a], a, keys, vals, park_time, park_owner,
-                        last_use, xs, ys, index, width, max_expand, t_max)
+        path = st_astar(nbr, dist[rows[a]], unreach, starts[a], goals[a], a, keys, vals, park_time, park_owner,
+                        last_use, xs, ys, index, width, max_expand, t_max, t_max, stamp, queue)
+        m = 0
         if path.shape[0] == 0:
+            m = blockers(a, nbr, dist[rows[a]], starts[a], goals[a], keys, vals, park_time, park_owner, planned,
+                         group, rng, stamp, queue)
+            # replan the blockers in their own priority order
+            for j in range(1, m):
+                x = group[j]
+                i = j
+                while i > 0 and rank[group[i - 1]] > rank[x]:
+                    group[i] = group[i - 1]
+                    i -= 1
+                group[i] = x
+            for j in range(m):
+                b = group[j]
+                old_off[j] = poff[b]
+                old_len[j] = plen[b]
+                unreserve(keys, meta, n, buf[poff[b]:poff[b] + plen[b]], park_time, park_owner)
+                planned[b] = False
+            if m > 0:
+                path = st_astar(nbr, dist[rows[a]], unreach, starts[a], goals[a], a, keys, vals, park_time,
+                                park_owner, last_use, xs, ys, index, width, max_expand, t_max, t_max, stamp, queue)
+        if path.shape[0] > 0:
+            keys, vals, meta = reserve(keys, vals, meta, n, path, a, park_time, park_owner, last_use)
+            horizon = max(horizon, path.shape[0])
+            while used + path.shape[0] > buf.shape[0]:
+                buf = np.concatenate((buf, np.empty(buf.shape[0], dtype=np.int32)))
+            buf[used:used + path.shape[0]] = path
+            poff[a] = used
+            plen[a] = path.shape[0]
+            used += path.shape[0]
+            planned[a] = True
+            done = 0
+            for j in range(m):
+                b = group[j]
+                t_max = horizon + n + 1
+                p = st_astar(nbr, dist[rows[b]], unreach, starts[b], goals[b], b, keys, vals, park_time,
+                             park_owner, last_use, xs, ys, index, width, max_expand, t_max, t_max, stamp, queue)
+                if p.shape[0] == 0:
+                    break
+                keys, vals, meta = reserve(keys, vals, meta, n, p, b, park_time, park_owner, last_use)
+                horizon = max(horizon, p.shape[0])
+                while used + p.shape[0] > buf.shape[0]:
+                    buf = np.concatenate((buf, np.empty(buf.shape[0], dtype=np.int32)))
+                buf[used:used + p.shape[0]] = p
+                poff[b] = used
+                plen[b] = p.shape[0]
+                used += p.shape[0]
+                planned[b] = True
+                done += 1
+            if done == m:
+                continue
+            # the repair failed: take back what it planned, restore the blockers' old paths
+            for j in range(done):
+                b = group[j]
+                unreserve(keys, meta, n, buf[poff[b]:poff[b] + plen[b]], park_time, park_owner)
+            unreserve(keys, meta, n, buf[poff[a]:poff[a] + plen[a]], park_time, park_owner)
+            planned[a] = False
+            plen[a] = 0
+        for j in range(m):
+            b = group[j]
+            poff[b] = old_off[j]
+            plen[b] = old_len[j]
+            keys, vals, meta = reserve(keys, vals, meta, n, buf[poff[b]:poff[b] + plen[b]], b, park_time,
+                                       park_owner, last_use)
+            planned[b] = True
+        if not skip_failures:
             return a, buf, poff, plen
-        keys, vals, meta = reserve(keys, vals, meta, n, path, a, park_time, park_owner, last_use)
-        horizon = max(horizon, path.shape[0])
-        while used + path.shape[0] > buf.shape[0]:
-            buf = np.concatenate((buf, np.empty(buf.shape[0], dtype=np.int32)))
-        buf[used:used + path.shape[0]] = path
-        poff[a] = used
-        plen[a] = path.shape[0]
-        used += path.shape[0]
-    return -1, buf, poff, plen
+        if first_failed < 0:
+            first_failed = a
+    return first_failed, buf, poff, plen
 
 
 def kernel_args(inst: Instance) -> tuple:
@@ -379,7 +587,7 @@ def kernel_args(inst: Instance) -> tuple:
 
 def max_expansions(inst: Instance) -> int:
     """A per-search expansion cap, so one stuck robot triggers a restart rather than a long search."""
-    return int(min(4_000_000, max(20_000, 4 * inst.graph.n)))
+    return int(min(4_000_000, max(200_000, 4 * inst.graph.n)))
 
 
 def split_paths(inst: Instance, buf: np.ndarray, poff: np.ndarray, plen: np.ndarray) -> list[Path]:
@@ -422,7 +630,7 @@ def plan_prioritized(inst: Instance, limits: Limits, max_tries: int | None = Non
         tries += 1
         deadline = time.perf_counter() + limits.remaining()
         failed, buf, poff, plen = _plan_in_order(nbr, dist, inst.rows, inst.table.unreachable, inst.starts,
-                                                 inst.goals, order, xs, ys, index, width, cap, deadline)
+                                                 inst.goals, order, xs, ys, index, width, cap, deadline, False)
         if failed == -1:
             return True, buf, poff, plen, tries, -1
         if failed == -2:
@@ -436,3 +644,20 @@ def plan_prioritized(inst: Instance, limits: Limits, max_tries: int | None = Non
         else:
             order = np.concatenate(([failed], np.delete(order, pos))).astype(np.int32)
     return False, None, None, None, tries, failed
+
+
+def guide_paths(inst: Instance, limits: Limits, max_expand: int):
+    """One prioritized pass that skips robots it cannot route: (flat paths, offsets, lengths, complete?).
+
+    Unrouted robots get length 0. None when the time runs out. The paths are
+    conflict-free among themselves; LaCAM uses them to guide PIBT.
+    """
+    nbr, xs, ys, index, width = kernel_args(inst)
+    rng = np.random.default_rng(inst.problem.seed)
+    order = np.lexsort((rng.random(inst.n), inst.start_distances())).astype(np.int32)
+    failed, buf, poff, plen = _plan_in_order(nbr, inst.table.dist, inst.rows, inst.table.unreachable, inst.starts,
+                                             inst.goals, order, xs, ys, index, width, max_expand,
+                                             time.perf_counter() + limits.remaining(), True)
+    if failed == -2:
+        return None
+    return buf, poff, plen, failed == -1

@@ -1,0 +1,52 @@
+"""The UAV conformance suite, run as a user would: against our UAV, and against broken ones."""
+from __future__ import annotations
+
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SUITE = "protocol/conformance/test_uav_conformance.py"
+UAV_ARGS = "uav --fleet {fleet} --connect {endpoint} --mavlink udpin://127.0.0.1:{mavlink_port} " \
+           "--robots {robots} --tick-timeout {tick_timeout}"
+
+
+def _suite(*args: str, timeout: float = 180) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "pytest", SUITE, "-q", "-p", "no:cacheprovider", *args],
+                          cwd=REPO, capture_output=True, text=True, timeout=timeout)
+
+
+def test_our_uav_conforms():
+    run = _suite()
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
+    assert " passed" in run.stdout and "failed" not in run.stdout and "error" not in run.stdout
+
+
+def test_a_uav_that_never_comes_up_fails_the_suite():
+    silent = f"{shlex.quote(sys.executable)} -c \"import time; time.sleep(60)\""
+    run = _suite("--uav-cmd", silent, "--uav-timeout", "2", "-k", "uav_token_is_up")
+    assert run.returncode == 1, run.stdout[-3000:]
+    assert "1 failed" in run.stdout, run.stdout[-3000:]
+    assert "the UAV was still running after 2 s" in run.stdout
+
+
+def test_a_uav_without_a_tick_barrier_fails_the_suite(tmp_path):
+    # Our UAV with its barrier removed: it puts tick k+1 without waiting for the robots' states for tick k.
+    hasty = tmp_path / "hasty_uav.py"
+    hasty.write_text(
+        "import sys\n"
+        "from uav_agent.fleet import FleetLink\n"
+        "from uav_agent.cli import main\n"
+        "wait = FleetLink.wait_until\n"
+        "def no_barrier(self, ready, timeout, failure, abort=None):\n"
+        "    if 'did not report tick' not in failure():\n"
+        "        wait(self, ready, timeout, failure, abort)\n"
+        "FleetLink.wait_until = no_barrier\n"
+        "sys.exit(main())\n")
+    cmd = f"{shlex.quote(sys.executable)} {shlex.quote(str(hasty))} {UAV_ARGS}"
+    run = _suite("--uav-cmd", cmd, "-k", "barrier_holds")
+    assert run.returncode == 1, run.stdout[-3000:]
+    assert "1 failed" in run.stdout, run.stdout[-3000:]
+    assert "FAILED " + SUITE + "::test_the_lockstep_barrier_holds" in run.stdout
+    assert "before robots [0, 1, 2] reported tick 1" in run.stdout
