@@ -14,18 +14,9 @@ from typing import Any, Mapping
 import numpy as np
 
 from protocol.errors import UavRobotsError
+from protocol.messages import MoveResult
 
 Cell = tuple[int, int]
-
-
-@dataclass(frozen=True)
-class Outcome:
-    """What happened to one robot's request (the fields of a `MoveResult`)."""
-    robot: int
-    tick: int
-    accepted: bool
-    cell: Cell
-    reason: str = ""
 
 
 @dataclass(frozen=True)
@@ -90,13 +81,13 @@ class MoveJudge:
         return ""
 
     # ------------------------------------------------------------- a tick
-    def resolve(self, tick: int, requests: Mapping[int, tuple[Cell, Cell]]) -> dict[int, Outcome]:
+    def resolve(self, tick: int, requests: Mapping[int, tuple[Cell, Cell]]) -> dict[int, MoveResult]:
         """Apply one tick's moves simultaneously; robots without a request stay.
 
         Returns an outcome for every requesting robot (known or not). A tick at
         or before the last resolved one changes nothing.
         """
-        out: dict[int, Outcome] = {}
+        out: dict[int, MoveResult] = {}
         if tick <= self.tick:
             for r, (frm, to) in requests.items():
                 out[r] = self.slip(tick, r, frm, to, f"tick {tick} is over (the world is at tick {self.tick})")
@@ -132,12 +123,12 @@ class MoveJudge:
             if r in why:
                 self.collisions += 1
                 self.refused.append(Refusal(tick, r, tuple(frm), tuple(to), why[r], True))
-                out[r] = Outcome(r, tick, False, pos[r], why[r])
+                out[r] = MoveResult(r, tick, False, pos[r], why[r])
         for r, to in target.items():
             pos[r] = to
         for r, (frm, to) in requests.items():
             if r in pos and r not in why:
-                out[r] = Outcome(r, tick, True, pos[r])
+                out[r] = MoveResult(r, tick, True, pos[r])
         for r, c in pos.items():
             self.record[r].append(c)
         self.tick = tick
@@ -183,9 +174,9 @@ class MoveJudge:
                 del target[r]
                 changed = True
 
-    def slip(self, tick: int, robot: int, frm: Cell, to: Cell, reason: str) -> Outcome:
+    def slip(self, tick: int, robot: int, frm: Cell, to: Cell, reason: str) -> MoveResult:
         self.refused.append(Refusal(tick, robot, tuple(frm), tuple(to), reason, False))
-        return Outcome(robot, tick, False, self.positions.get(robot, tuple(frm)), reason)
+        return MoveResult(robot, tick, False, self.positions.get(robot, tuple(frm)), reason)
 
     def note_missing(self, tick: int, robots: list[int], reason: str) -> None:
         """Robots that sent no request for a resolved tick (they stayed): reported, not collisions."""

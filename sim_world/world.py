@@ -31,7 +31,7 @@ from protocol.messages import (CameraRequest, MissionEnd, MoveBatch, MoveBatchRe
 from protocol.transport import Handle, IncomingQuery, Transport, ZenohTransport
 
 from .maps import place, resolve_map
-from .moves import MoveJudge, Outcome
+from .moves import MoveJudge
 
 # PX4 SITL's default home: a field near Zurich. The grid's top-left corner is there.
 HOME = (47.397742, 8.545594, 488.0)
@@ -139,7 +139,7 @@ class MoveDesk:
             j = self.judge
             if req.robot not in j.positions:
                 o = j.slip(req.tick, req.robot, req.frm, req.to, f"unknown robot {req.robot}")
-                sends.append((reply, _result(o)))
+                sends.append((reply, o))
             elif req.tick <= j.tick or (self.tick is not None and req.tick < self.tick):
                 prev = self.last.get(req.robot)
                 if prev and prev[0].tick == req.tick and (prev[0].frm, prev[0].to) == (req.frm, req.to):
@@ -148,7 +148,7 @@ class MoveDesk:
                     now = self.tick if self.tick is not None else j.tick
                     o = j.slip(req.tick, req.robot, req.frm, req.to,
                                 f"tick {req.tick} is over (the world is at tick {now})")
-                    sends.append((reply, _result(o)))
+                    sends.append((reply, o))
             else:
                 if self.tick is not None and req.tick > self.tick:
                     sends += self._resolve(f"no move request before tick {req.tick} began: stayed")
@@ -176,7 +176,7 @@ class MoveDesk:
             self.judge.note_missing(tick, missing, why_missing)
         out = []
         for r, (q, reply) in batch.items():
-            res = _result(outcomes[r])
+            res = outcomes[r]
             self.last[r] = (q, res)
             out.append((reply, res))
         return out
@@ -202,10 +202,6 @@ class MoveDesk:
             self._closed = True
             self.cv.notify_all()
         self._timer.join(2.0)
-
-
-def _result(o: Outcome) -> MoveResult:
-    return MoveResult(robot=o.robot, tick=o.tick, accepted=o.accepted, cell=o.cell, reason=o.reason)
 
 
 def _send(sends: list[tuple[Reply, MoveResult]]) -> None:

@@ -12,7 +12,7 @@ UAV_ARGS = "uav --fleet {fleet} --connect {endpoint} --mavlink udpin://127.0.0.1
            "--robots {robots} --tick-timeout {tick_timeout}"
 
 
-def _suite(*args: str, timeout: float = 180) -> subprocess.CompletedProcess:
+def _suite(*args: str, timeout: float = 280) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "pytest", SUITE, "-q", "-p", "no:cacheprovider", *args],
                           cwd=REPO, capture_output=True, text=True, timeout=timeout)
 

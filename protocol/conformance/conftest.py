@@ -10,7 +10,8 @@ from __future__ import annotations
 import pytest
 
 from protocol.conformance import DEFAULT_ROBOT_CMD, FakeUav, FakeWorld, Hub, start_robot, stop_process
-from protocol.conformance.uav_harness import DEFAULT_UAV_CMD, PLACEHOLDERS, UavOptions
+from protocol.conformance.uav_harness import DEFAULT_UAV_CMD, PLACEHOLDERS, UavOptions, uav_command
+from protocol.errors import MissionError
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -104,6 +105,10 @@ def _log(tmp_path) -> str:
 @pytest.fixture(scope="session")
 def uav_options(request: pytest.FixtureRequest) -> UavOptions:
     o = request.config.getoption
+    try:  # a bad placeholder is a usage error: one line, and nothing is started
+        uav_command(o("--uav-cmd"), fleet="f", endpoint="tcp/127.0.0.1:1", mavlink_port=1, robots=1, tick_timeout=1)
+    except MissionError as exc:
+        pytest.exit(f"error: {exc}", returncode=4)
     return UavOptions(cmd=o("--uav-cmd"), map=o("--uav-map"), robots=o("--uav-robots"), seed=o("--uav-seed"),
                       time_scale=o("--uav-time-scale"), tick_timeout_s=o("--uav-tick-timeout"),
                       mission_timeout_s=o("--uav-timeout"))

@@ -53,7 +53,7 @@ class UavOptions:
     seed: int = 0
     time_scale: float = 10.0
     tick_timeout_s: float = 3.0
-    mission_timeout_s: float = 60.0
+    mission_timeout_s: float = 90.0
     connectivity: int = 4
 
     @property
@@ -186,6 +186,7 @@ class FakeRobot:
     acked: dict[str, bool] = field(default_factory=dict)   # plan_id -> ok
     reported: set[int] = field(default_factory=set)        # ticks whose RobotState was put
     done_for: str = ""
+    last_state: RobotState | None = None
     seq: int = 0
 
 
@@ -444,8 +445,9 @@ class FakeFleet(Waiter):
         with self.cv:
             robot.reported.add(k)  # before the put: the UAV cannot legitimately have it earlier
         self._put(robot, self.keys.state(rid), state)
-        if garbage and k > 1:
-            self._put(robot, self.keys.state(rid), dataclasses.replace(state, tick=k - 1))  # a late duplicate
+        if garbage and robot.last_state is not None:
+            self._put(robot, self.keys.state(rid), robot.last_state)  # the previous tick's state, resent late
+        robot.last_state = state
         if arrived and robot.done_for != plan.plan_id:
             done = Done(robot=rid, tick=k, cell=robot.cell)
             with self.cv:

@@ -15,15 +15,18 @@ follows share the same breadth-first searches.
 from __future__ import annotations
 
 import hashlib
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-from numba import get_num_threads, njit, prange
+from numba import njit
 
 from protocol.errors import PlanningError
 
 from .types import Cell, Problem
 
+THREADS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
 UNREACHABLE_16 = np.iinfo(np.uint16).max
 UNREACHABLE_32 = np.iinfo(np.int32).max
 
@@ -72,9 +75,16 @@ class GridGraph:
         return int(self.cells.shape[0])
 
     def bfs_rows(self, sources: np.ndarray, out: np.ndarray, sentinel: int) -> int:
-        return _bfs_rows(self.base, self.width + 2, self.connectivity == 8, self.padded,
-                         np.ascontiguousarray(sources, dtype=np.int32), out, sentinel,
-                         get_num_threads())
+        """BFS from every source into out's rows, on all cores; returns the largest distance."""
+        sources = np.ascontiguousarray(sources, dtype=np.int32)
+        args = (self.base, self.width + 2, self.connectivity == 8, self.padded, sources, out, sentinel)
+        m = sources.size
+        chunks = min(m, THREADS)
+        if chunks <= 1:
+            return _bfs_rows(*args, 0, m)
+        bounds = [(c * m // chunks, (c + 1) * m // chunks) for c in range(chunks)]
+        with ThreadPoolExecutor(chunks) as pool:
+            return max(pool.map(lambda b: _bfs_rows(*args, *b), bounds))
 
     def id_of(self, cell: Cell, what: str = "cell") -> int:
         h, w = self.free.shape
@@ -184,35 +194,28 @@ def _bfs(base: np.ndarray, pitch: int, diagonal: bool, source: int, dist: np.nda
     return far
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _bfs_rows(base: np.ndarray, pitch: int, diagonal: bool, padded: np.ndarray, sources: np.ndarray,
-              out: np.ndarray, sentinel: int, threads: int) -> int:
-    """One BFS per compact source id into out[row] (compact ids); unreachable cells get `sentinel`.
-
-    Returns the largest finite distance so that the caller can tell whether
-    the row type was wide enough.
-    """
+              out: np.ndarray, sentinel: int, lo: int, hi: int) -> int:
+    """One BFS per compact source id sources[lo:hi] into out[row] (compact ids); unreachable
+    cells get `sentinel`. Returns the largest finite distance so that the caller can tell
+    whether the row type was wide enough. Releases the GIL: threads run chunks side by side."""
     n = padded.shape[0]
-    m = sources.shape[0]
-    far = np.zeros(m, dtype=np.int64)
-    chunks = min(m, 2 * threads)
-    for c in prange(chunks):
-        # scratch buffers once per chunk: fresh large allocations cost page faults
-        dist = np.empty(base.shape[0], dtype=np.int32)
-        queue = np.empty(n, dtype=np.int32)
-        for r in range(c * m // chunks, (c + 1) * m // chunks):
-            far[r] = _bfs(base, pitch, diagonal, padded[sources[r]], dist, queue)
-            row = out[r]
-            for v in range(n):
-                d = dist[padded[v]]
-                if d < 0 or d >= sentinel:
-                    row[v] = sentinel
-                else:
-                    row[v] = d
+    # scratch buffers once per chunk: fresh large allocations cost page faults
+    dist = np.empty(base.shape[0], dtype=np.int32)
+    queue = np.empty(n, dtype=np.int32)
     best = 0
-    for r in range(far.shape[0]):
-        if far[r] > best:
-            best = far[r]
+    for r in range(lo, hi):
+        far = _bfs(base, pitch, diagonal, padded[sources[r]], dist, queue)
+        if far > best:
+            best = far
+        row = out[r]
+        for v in range(n):
+            d = dist[padded[v]]
+            if d < 0 or d >= sentinel:
+                row[v] = sentinel
+            else:
+                row[v] = d
     return best
 
 

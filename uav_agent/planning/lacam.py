@@ -27,7 +27,7 @@ from protocol.errors import PlanningError
 from .distances import Instance, compile_problem
 from .pibt import (_crosses, degrees, history_to_paths, initial_priorities, pibt, pibt_step, rand_next,
                    update_priorities)
-from .prioritized import (guide_paths, hm_get, hm_new, st_key, kernel_args, max_expansions, now, reserve,
+from .prioritized import (copy_into, grow, guide_paths, hm_get, order_by_priority, hm_new, st_key, kernel_args, max_expansions, now, reserve,
                           split_paths, st_astar, unreserve)
 from .types import Limits, Path, Problem
 
@@ -90,15 +90,15 @@ def _add_cfg(keys, vals, meta, h: int, node: int):
 @njit(cache=True)
 def _grow2(a: np.ndarray, rows: int) -> np.ndarray:
     b = np.empty((2 * a.shape[0], a.shape[1]), dtype=a.dtype)
-    b[:rows] = a[:rows]
+    for r in range(rows):
+        for i in range(a.shape[1]):
+            b[r, i] = a[r, i]
     return b
 
 
 @njit(cache=True)
 def _grow1(a: np.ndarray) -> np.ndarray:
-    b = np.empty(2 * a.shape[0], dtype=a.dtype)
-    b[:a.shape[0]] = a
-    return b
+    return grow(a, a.shape[0] + 1)
 
 
 @njit(cache=True)
@@ -144,16 +144,17 @@ def _search(nbr, deg, dist, rows, starts, goals, prio0, xs, ys, index, width: in
     rng = np.array([np.uint64(seed) * np.uint64(2654435761) + np.uint64(88172645463325252)], dtype=np.uint64)
     q_to = np.empty(na, dtype=np.int32)
     cands = np.empty(k, dtype=np.int32)
-    p_new = np.empty(na, dtype=np.float64)
+    p_new = np.empty(na, dtype=np.float32)
     pref = np.full(na, -1, dtype=np.int32)
     guided = False
     for i in range(na):
         if glen[i] > 0:
             guided = True
 
-    cfg[0] = starts
     for i in range(na):
+        cfg[0, i] = starts[i]
         prio[0, i] = prio0[i]
+    order = np.empty(na, dtype=np.int32)
     parent[0] = -1
     depth[0] = 0
     l_parent[0] = -1
@@ -191,7 +192,7 @@ def _search(nbr, deg, dist, rows, starts, goals, prio0, xs, ys, index, width: in
             continue
         low = q_head[h]
         q_head[h] = l_next[low]
-        order = np.argsort(-prio[h])
+        order_by_priority(prio[h], order)
         # lazily add the children of this constraint: the next robot in order, every possible move
         if l_depth[low] < na:
             i = order[l_depth[low]]
@@ -227,7 +228,8 @@ def _search(nbr, deg, dist, rows, starts, goals, prio0, xs, ys, index, width: in
                 lnodes += 1
         # successor configuration under the constraints of `low`
         q_from = cfg[h]
-        q_to[:] = -1
+        for i in range(na):
+            q_to[i] = -1
         ok = True
         c = low
         while l_who[c] >= 0:
@@ -293,8 +295,8 @@ def _search(nbr, deg, dist, rows, starts, goals, prio0, xs, ys, index, width: in
             depth = _grow1(depth)
             q_head = _grow1(q_head)
             q_tail = _grow1(q_tail)
-        cfg[nodes] = q_to
         for i in range(na):
+            cfg[nodes, i] = q_to[i]
             p_new[i] = prio[h, i]
         update_priorities(p_new, q_to, goals)
         for i in range(na):
@@ -332,7 +334,8 @@ def _search(nbr, deg, dist, rows, starts, goals, prio0, xs, ys, index, width: in
     out = np.empty((length, na), dtype=np.int32)
     c = goal_node
     for t in range(length - 1, -1, -1):
-        out[t] = cfg[c]
+        for i in range(na):
+            out[t, i] = cfg[c, i]
         c = parent[c]
     return 0, out
 
@@ -460,7 +463,8 @@ def _refine(nbr, dist, rows, unreach: int, starts, goals, d0, buf, poff, plen, x
                         break
                 if a < 0:
                     break
-                fails[:] = 0
+                for r in range(na):
+                    fails[r] = 0
                 stale = 0
             else:
                 continue
@@ -539,9 +543,8 @@ def _refine(nbr, dist, rows, unreach: int, starts, goals, d0, buf, poff, plen, x
             new += path.shape[0] - 1
             keys, vals, meta = reserve(keys, vals, meta, n, path, b, park_time, park_owner, last_use)
             done += 1
-            while filled + path.shape[0] > tmp.shape[0]:
-                tmp = np.concatenate((tmp, np.empty(tmp.shape[0], dtype=np.int32)))
-            tmp[filled:filled + path.shape[0]] = path
+            tmp = grow(tmp, filled + path.shape[0])
+            copy_into(tmp, filled, path, path.shape[0])
             tmp_off[j] = filled
             tmp_len[j] = path.shape[0]
             filled += path.shape[0]
@@ -549,15 +552,14 @@ def _refine(nbr, dist, rows, unreach: int, starts, goals, d0, buf, poff, plen, x
                 ok = False      # cannot improve any more
                 break
         if ok and new < old:
-            while used + filled > buf.shape[0]:
-                buf = np.concatenate((buf, np.empty(buf.shape[0], dtype=np.int32)))
+            buf = grow(buf, used + filled)
             for j in range(m):
                 b = members[j]
                 poff[b] = used + tmp_off[j]
                 plen[b] = tmp_len[j]
                 horizon = max(horizon, plen[b])
                 fails[b] = 0
-            buf[used:used + filled] = tmp[:filled]
+            copy_into(buf, used, tmp, filled)
             used += filled
             soc -= old - new
         else:
@@ -579,7 +581,7 @@ def _refine(nbr, dist, rows, unreach: int, starts, goals, d0, buf, poff, plen, x
             nb = np.empty(2 * live + 1024, dtype=np.int32)
             pos = 0
             for b in range(na):
-                nb[pos:pos + plen[b]] = buf[poff[b]:poff[b] + plen[b]]
+                copy_into(nb, pos, buf[poff[b]:poff[b] + plen[b]], plen[b])
                 poff[b] = pos
                 pos += plen[b]
             buf = nb

@@ -20,7 +20,7 @@ from numba import njit
 from protocol.errors import PlanningError
 
 from .distances import Instance, compile_problem
-from .prioritized import kernel_args, now
+from .prioritized import kernel_args, now, order_by_priority
 from .types import Limits, Path, Problem
 
 
@@ -279,7 +279,9 @@ def _run(nbr, deg, dist, rows, starts, goals, prio, xs, ys, index, width: int, d
     n = nbr.shape[0]
     na = starts.shape[0]
     hist = np.empty((64, na), dtype=np.int32)
-    hist[0] = starts
+    for i in range(na):
+        hist[0, i] = starts[i]
+    order = np.empty(na, dtype=np.int32)
     occ_now = np.full(n, -1, dtype=np.int32)
     occ_nxt = np.full(n, -1, dtype=np.int32)
     k = nbr.shape[1] + 1
@@ -307,18 +309,21 @@ def _run(nbr, deg, dist, rows, starts, goals, prio, xs, ys, index, width: int, d
             return 2, hist[:t + 1]
         for i in range(na):
             occ_now[q_from[i]] = i
-        q_to[:] = -1
-        order = np.argsort(-prio)
+        for i in range(na):
+            q_to[i] = -1
+        order_by_priority(prio, order)
         pibt_step(nbr, deg, dist, rows, goals, q_from, q_to, order, occ_now, occ_nxt, xs, ys, index, width,
                   diagonal, swap, st_agent, st_pos, st_nc, st_cand, st_swap, rng, pref)
         for i in range(na):
             occ_now[q_from[i]] = -1
         if t + 1 == hist.shape[0]:
             bigger = np.empty((2 * hist.shape[0], na), dtype=np.int32)
-            bigger[:t + 1] = hist[:t + 1]
+            for r in range(t + 1):
+                for i in range(na):
+                    bigger[r, i] = hist[r, i]
             hist = bigger
-            q_from = hist[t]
-        hist[t + 1] = q_to
+        for i in range(na):
+            hist[t + 1, i] = q_to[i]
         update_priorities(prio, q_to, goals)
         t += 1
 
@@ -330,7 +335,7 @@ def degrees(nbr: np.ndarray) -> np.ndarray:
 def initial_priorities(inst: Instance) -> np.ndarray:
     """Fractional start priorities: farther robots first, all below 1 so progress dominates."""
     d = inst.start_distances().astype(np.float64)
-    return d / (d.max() + 1.0) if d.size else d
+    return (d / (d.max() + 1.0) if d.size else d).astype(np.float32)
 
 
 def history_to_paths(inst: Instance, hist: np.ndarray) -> list[Path]:

@@ -43,6 +43,65 @@ def now() -> float:
     return t
 
 
+# ---- small array helpers: explicit loops, because numpy slice assignment and concatenate
+# ---- pull broadcasting and error-formatting code into every kernel and slow compiling down
+
+@njit(cache=True)
+def copy_into(dst: np.ndarray, at: int, src: np.ndarray, count: int) -> None:
+    for i in range(count):
+        dst[at + i] = src[i]
+
+
+@njit(cache=True)
+def grow(a: np.ndarray, need: int) -> np.ndarray:
+    """a itself if it holds `need` items, else a copy at least twice as long."""
+    if need <= a.shape[0]:
+        return a
+    size = max(need, 2 * a.shape[0])
+    b = np.empty(size, dtype=a.dtype)
+    for i in range(a.shape[0]):
+        b[i] = a[i]
+    return b
+
+
+@njit(cache=True)
+def order_by_priority(prio: np.ndarray, out: np.ndarray) -> None:
+    """out = robot indices by decreasing priority (heapsort; ties by index)."""
+    n = prio.shape[0]
+    for i in range(n):
+        out[i] = i
+    # a min-heap on priority, popped to the back, leaves the array in decreasing order
+    for start in range((n - 2) // 2, -1, -1):
+        _sift(prio, out, start, n)
+    for end in range(n - 1, 0, -1):
+        tmp = out[0]
+        out[0] = out[end]
+        out[end] = tmp
+        _sift(prio, out, 0, end)
+
+
+@njit(cache=True)
+def _sift(prio, out, i: int, n: int) -> None:
+    while True:
+        c = 2 * i + 1
+        if c >= n:
+            return
+        if c + 1 < n and _before(prio, out[c + 1], out[c]):
+            c += 1
+        if not _before(prio, out[c], out[i]):
+            return
+        tmp = out[i]
+        out[i] = out[c]
+        out[c] = tmp
+        i = c
+
+
+@njit(cache=True, inline='always')
+def _before(prio, a: int, b: int) -> bool:
+    """Heap order: lower priority first, then higher index (so the result reads high to low)."""
+    return prio[a] < prio[b] or (prio[a] == prio[b] and a > b)
+
+
 # ---- open-addressing hash map int64 -> int32 (keys >= 0; EMPTY/TOMB markers) ----
 # Keys are (cell << 32 | step). The slot scatters cells but keeps the steps of one cell
 # next to each other, so the lookups of one search step mostly share cache lines.
@@ -191,8 +250,7 @@ def _blocked(keys, vals, n: int, v: int, u: int, t: int, agent: int, park_time, 
 
 @njit(cache=True)
 def _heap_grow(hk, hn):
-    return (np.concatenate((hk, np.empty(hk.shape[0], dtype=np.int64))),
-            np.concatenate((hn, np.empty(hn.shape[0], dtype=np.int32))))
+    return grow(hk, hk.shape[0] + 1), grow(hn, hn.shape[0] + 1)
 
 
 @njit(cache=True, inline='always')
@@ -356,9 +414,9 @@ def st_astar(nbr, drow, unreach: int, start: int, goal: int, agent: int, keys, v
             if hm_get(sk, sv, key) >= 0:
                 continue
             if nodes == nv.shape[0]:
-                nv = np.concatenate((nv, np.empty(nodes, dtype=np.int32)))
-                nt = np.concatenate((nt, np.empty(nodes, dtype=np.int32)))
-                npar = np.concatenate((npar, np.empty(nodes, dtype=np.int32)))
+                nv = grow(nv, nodes + 1)
+                nt = grow(nt, nodes + 1)
+                npar = grow(npar, nodes + 1)
             nv[nodes] = u
             nt[nodes] = t + 1
             npar[nodes] = node
@@ -530,9 +588,8 @@ def _plan_in_order(nbr, dist, rows, unreach: int, starts, goals, order, xs, ys, 
         if path.shape[0] > 0:
             keys, vals, meta = reserve(keys, vals, meta, n, path, a, park_time, park_owner, last_use)
             horizon = max(horizon, path.shape[0])
-            while used + path.shape[0] > buf.shape[0]:
-                buf = np.concatenate((buf, np.empty(buf.shape[0], dtype=np.int32)))
-            buf[used:used + path.shape[0]] = path
+            buf = grow(buf, used + path.shape[0])
+            copy_into(buf, used, path, path.shape[0])
             poff[a] = used
             plen[a] = path.shape[0]
             used += path.shape[0]
@@ -547,9 +604,8 @@ def _plan_in_order(nbr, dist, rows, unreach: int, starts, goals, order, xs, ys, 
                     break
                 keys, vals, meta = reserve(keys, vals, meta, n, p, b, park_time, park_owner, last_use)
                 horizon = max(horizon, p.shape[0])
-                while used + p.shape[0] > buf.shape[0]:
-                    buf = np.concatenate((buf, np.empty(buf.shape[0], dtype=np.int32)))
-                buf[used:used + p.shape[0]] = p
+                buf = grow(buf, used + p.shape[0])
+                copy_into(buf, used, p, p.shape[0])
                 poff[b] = used
                 plen[b] = p.shape[0]
                 used += p.shape[0]
