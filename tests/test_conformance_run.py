@@ -10,7 +10,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def _suite(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "pytest", "protocol/conformance", "-q", "-p", "no:cacheprovider",
+    return subprocess.run([sys.executable, "-m", "pytest", "protocol/conformance/test_robot_conformance.py", "-q", "-p", "no:cacheprovider",
                            *args], cwd=REPO, capture_output=True, text=True, timeout=timeout)
 
 

@@ -20,9 +20,9 @@ from protocol.errors import PlanningError
 from protocol.mapfile import read_map, read_scen
 from sim_world.maps import place, random_map
 from uav_agent.planning.distances import compile_problem
-from uav_agent.planning.lacam import lacam, search
+from uav_agent.planning.lacam import lacam, refine, search, trimmed
 from uav_agent.planning.pibt import history_to_paths, pibt
-from uav_agent.planning.prioritized import prioritized
+from uav_agent.planning.prioritized import prioritized, split_paths
 from uav_agent.planning.types import Limits, Problem, sum_of_costs
 from uav_agent.planning.validator import check
 
@@ -237,3 +237,15 @@ def test_lacam_search_alone_solves_a_dense_warehouse():
     hist = search(inst, Limits(30))
     assert (hist[0] == inst.starts).all() and (hist[-1] == inst.goals).all()
     check(problem, history_to_paths(inst, hist))
+
+
+def test_refinement_keeps_plans_valid_and_lowers_the_sum_of_costs():
+    problem = _scen_problem(W10 / "warehouse-10-20-10-2-1.map", W10 / "warehouse-10-20-10-2-1-random-1.scen", 150)
+    inst = compile_problem(problem)
+    buf, poff, plen = trimmed(inst, search(inst, Limits(30)))
+    before = int((plen - 1).sum())
+    buf2, poff2, plen2, soc, iterations = refine(inst, buf, poff, plen, 0.5)
+    paths = split_paths(inst, buf2, poff2, plen2)
+    check(problem, paths)
+    assert iterations > 0 and soc == sum_of_costs(paths, problem.goals) < before
+    assert soc >= inst.lower_bound()

@@ -27,6 +27,7 @@ from .fleet import FleetLink
 from .progress import Progress
 
 QUERY_TIMEOUT_S = 10.0
+ABORT_LAND_TIMEOUT_S = 60.0
 RELOOK_ROUNDS = 2          # closer looks at markers whose id did not decode
 RELOOK_MAX_CELLS = 20
 RELOOK_MIN_ALT_M = 3.0
@@ -94,6 +95,7 @@ class Mission:
         self.uav: dict[str, Any] = {"mavlink_url": cfg.mavlink_url, "armed": False,
                                     "max_altitude_m": 0.0, "hover": None, "landed": False}
         self.frames: list[CameraFrame] = []
+        self._ended = False
 
     # ------------------------------------------------------------ helpers
     def _next(self) -> int:
@@ -120,7 +122,6 @@ class Mission:
 
         self.transport = _transport(self.cfg)
         self.flight = None
-        ended = False
         try:
             self._token = self.transport.announce(self.keys.alive_uav)
             self.fleet = FleetLink(self.transport, self.keys)
@@ -141,12 +142,15 @@ class Mission:
             self._dispatch(result)
             self._execute(result)
             self._end(True, "all robots at their goals")
-            ended = True
             self._land()
             self._finish_report(result, model)
             return self.report
+        except Exception:
+            # A failed mission must not leave the drone hovering armed: land it, then report the failure.
+            self._abort_landing()
+            raise
         finally:
-            if not ended:
+            if not self._ended:
                 try:
                     self._end(False, "mission aborted")
                 except Exception:  # noqa: BLE001 - the session may already be gone
@@ -307,8 +311,22 @@ class Mission:
         self.clock.lap("execute")
 
     def _end(self, completed: bool, reason: str) -> None:
+        if self._ended:
+            return
+        self._ended = True
         self.transport.put(self.keys.mission_end, encode(MissionEnd(completed=completed, reason=reason,
                                                                     seq=self._next())))
+
+    def _abort_landing(self) -> None:
+        if self.flight is None or not self.uav["armed"] or self.uav["landed"]:
+            return
+        try:
+            self._end(False, "mission aborted")
+            self.progress.phase("abort", "landing the vehicle")
+            self.flight.land(timeout_s=ABORT_LAND_TIMEOUT_S)
+            self.uav["landed"] = True
+        except Exception as exc:  # noqa: BLE001 - the link may be the thing that failed
+            self.progress.phase("abort", f"could not land: {exc}")
 
     def _land(self) -> None:
         self._status("land", message="landing over MAVLink")

@@ -165,6 +165,11 @@ def _fails_with_one_line(run: MissionRun, robot: int, opts, since: float) -> Non
     assert run.log.ends[-1][1].completed is False, "MissionEnd says completed although a robot failed"
     alive = run.log.uav_alive
     assert alive and not alive[-1][1], "alive/uav is still declared after the UAV exited"
+    v = run.vehicle
+    if v is not None and v["max_altitude_m"] > 1.0:
+        # Safety, not wire format: a leader that gives up must not leave its drone hovering armed.
+        assert v["landed_state"] == "ON_GROUND" and not v["armed"], \
+            f"after the abort the vehicle is {v['landed_state']}, armed {v['armed']}"
 
 
 def test_a_refused_plan_ends_the_mission_with_an_error(uav_options, tmp_path):

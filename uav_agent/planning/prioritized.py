@@ -370,7 +370,8 @@ def st_astar(nbr, drow, unreach: int, start: int, goal: int, agent: int, keys, v
     hsize = 1
     hm_put(sk, sv, sm, st_key(start, 0), 0)
     expanded = 0
-    check_at = 2 * drow[start] + 500
+    # late enough that the check (a sweep of the map) costs less than the search so far
+    check_at = 2 * drow[start] + 500 + n // 8
     no_more = np.int64(1) << np.int64(62)
     while hsize > 0:
         node = hn[0]
