@@ -75,7 +75,7 @@ def test_default_mission(tmp_path):
 def test_noisy_camera_needs_a_closer_look(tmp_path):
     """Noise, blur and uneven light make some markers unreadable from survey height: the UAV flies lower."""
     res = _run(["run", "--map", "warehouse:blocks_x=4,blocks_y=12", "--robots", "30", "--out", str(tmp_path),
-                "--camera", "noise_std=10,blur_sigma=1.3,lighting=0.3"], timeout=240)
+                "--camera", "width=1280,height=960,noise_std=10,blur_sigma=1.3,lighting=0.3"], timeout=240)
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
     assert "a closer look" in res.stdout
     report = json.loads((tmp_path / "report.json").read_text())

@@ -20,7 +20,7 @@ from protocol.errors import PlanningError
 from protocol.mapfile import read_map, read_scen
 from sim_world.maps import place, random_map
 from uav_agent.planning.distances import compile_problem
-from uav_agent.planning.lacam import lacam, refine, search, trimmed
+from uav_agent.planning.lacam import lacam, refine, search, trimmed, warm_up
 from uav_agent.planning.pibt import history_to_paths, pibt
 from uav_agent.planning.prioritized import prioritized, split_paths
 from uav_agent.planning.types import Limits, Problem, sum_of_costs
@@ -30,6 +30,12 @@ BENCH = Path("/work/shared/benchmarks")
 W450 = BENCH / "paper-warehouse-450"
 W10 = BENCH / "movingai" / "warehouse-10-20-10-2-1"
 PLANNERS = {"prioritized": prioritized, "pibt": pibt, "lacam": lacam}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def compiled_kernels():
+    """Compile (or load from numba's cache) every kernel before any test runs against a time limit."""
+    warm_up()
 
 
 def rows(*lines: str) -> np.ndarray:
@@ -249,3 +255,13 @@ def test_refinement_keeps_plans_valid_and_lowers_the_sum_of_costs():
     check(problem, paths)
     assert iterations > 0 and soc == sum_of_costs(paths, problem.goals) < before
     assert soc >= inst.lower_bound()
+
+
+def test_search_memory_bound_is_a_one_line_error():
+    free = np.zeros((14, 20), bool)
+    free[1:12, 1:12] = True
+    free[13, 1:8] = True
+    room = [(int(x), int(y)) for y, x in np.argwhere(free[:12])][:30]
+    problem = Problem(free, room + [(1, 13), (7, 13)], room[1:] + room[:1] + [(7, 13), (1, 13)])
+    with pytest.raises(PlanningError, match="search memory of 1 MB used up"):
+        search(compile_problem(problem), Limits(60), memory=1e6)

@@ -23,8 +23,8 @@ def _add_run(sub) -> None:
     p.add_argument("--time-scale", type=float, default=10.0,
                    help="simulated seconds per wall second for the vehicle (default 10)")
     p.add_argument("--camera", default="",
-                   help="camera options for the world, e.g. 'width=4000,height=3000,hfov_deg=84,noise_std=6,"
-                        "blur_sigma=1,lighting=0.3' (default 1280x960, 90 deg, clean)")
+                   help="camera options for the world, e.g. 'width=1280,height=960,hfov_deg=84,noise_std=6,"
+                        "blur_sigma=1,lighting=0.3' (default 4000x3000, 90 deg, clean)")
     p.add_argument("--robots-per-process", type=int, default=None,
                    help="robots hosted per process (default: 1 up to 64 robots, then 4 pools)")
     p.add_argument("--timeout", type=float, default=900.0, help="give up after this many seconds")

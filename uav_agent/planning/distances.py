@@ -64,6 +64,7 @@ class GridGraph:
     cells: np.ndarray         # int32 [n]: compact id -> flat cell
     nbr: np.ndarray           # int32 [n, 4 or 8]: compact neighbour ids, -1 padded at the end
     base: np.ndarray          # int32 [(h+2)*(w+2)]: the grid with a wall border, -1 free, -2 wall
+    base16: np.ndarray        # the same as uint16: 65535 free, 65534 wall
     padded: np.ndarray        # int32 [n]: compact id -> flat index in the bordered grid
 
     @property
@@ -77,7 +78,7 @@ class GridGraph:
     def bfs_rows(self, sources: np.ndarray, out: np.ndarray, sentinel: int) -> int:
         """BFS from every source into out's rows, on all cores; returns the largest distance."""
         sources = np.ascontiguousarray(sources, dtype=np.int32)
-        args = (self.base, self.width + 2, self.connectivity == 8, self.padded, sources, out, sentinel)
+        args = (self.base16 if out.dtype == np.uint16 else self.base, self.width + 2, self.connectivity == 8, self.padded, sources, out, sentinel)
         m = sources.size
         chunks = min(m, THREADS)
         if chunks <= 1:
@@ -137,21 +138,26 @@ def grid_graph(free: np.ndarray, connectivity: int = 4) -> GridGraph:
         border = np.zeros((h + 2, w + 2), dtype=bool)
         border[1:-1, 1:-1] = free
         base = np.where(border.ravel(), -1, -2).astype(np.int32)
+        base16 = np.where(border.ravel(), 65535, 65534).astype(np.uint16)
         padded = ((cells // w + 1) * (w + 2) + cells % w + 1).astype(np.int32)
-        g = GridGraph(free, connectivity, index, cells, nbr, base, padded)
+        g = GridGraph(free, connectivity, index, cells, nbr, base, base16, padded)
         _GRAPH_CACHE.clear()  # one map at a time: the graph of a large map is tens of MB
         _GRAPH_CACHE[key] = g
     return g
 
 
 @njit(cache=True)
-def _bfs(base: np.ndarray, pitch: int, diagonal: bool, source: int, dist: np.ndarray, queue: np.ndarray) -> int:
-    """BFS on the padded grid: base holds -1 on free cells and -2 on walls; fills dist.
+def _bfs(base: np.ndarray, pitch: int, diagonal: bool, source: int, dist: np.ndarray, queue: np.ndarray,
+         unseen: int, wall: int, limit: int) -> int:
+    """BFS on the padded grid: base holds `unseen` on free cells and `wall` on walls; fills dist.
 
-    The one-cell wall border removes every bounds check from the inner loop.
-    Returns the largest distance reached.
+    The one-cell wall border removes every bounds check from the inner loop; the uint16
+    variant (unseen 65535, wall 65534) halves the memory traffic. Returns the largest
+    distance reached, or limit + 1 as soon as a distance would exceed `limit` (the search
+    stops there: the caller must use a wider type).
     """
-    dist[:] = base
+    for i in range(base.shape[0]):
+        dist[i] = base[i]
     dist[source] = 0
     queue[0] = source
     head = 0
@@ -161,32 +167,34 @@ def _bfs(base: np.ndarray, pitch: int, diagonal: bool, source: int, dist: np.nda
         v = queue[head]
         head += 1
         dv = dist[v] + 1
+        if dv > limit:
+            return limit + 1
         u = v + 1
-        if dist[u] == -1:
+        if dist[u] == unseen:
             dist[u] = dv
             queue[tail] = u
             tail += 1
         u = v - 1
-        if dist[u] == -1:
+        if dist[u] == unseen:
             dist[u] = dv
             queue[tail] = u
             tail += 1
         u = v + pitch
-        if dist[u] == -1:
+        if dist[u] == unseen:
             dist[u] = dv
             queue[tail] = u
             tail += 1
         u = v - pitch
-        if dist[u] == -1:
+        if dist[u] == unseen:
             dist[u] = dv
             queue[tail] = u
             tail += 1
         if diagonal:
-            # walls stay -2 forever, so "!= -2" is "free" (no corner cutting)
+            # walls never change, so "!= wall" is "free" (no corner cutting)
             for sy in (pitch, -pitch):
                 for sx in (1, -1):
                     u = v + sy + sx
-                    if dist[u] == -1 and dist[v + sx] != -2 and dist[v + sy] != -2:
+                    if dist[u] == unseen and dist[v + sx] != wall and dist[v + sy] != wall:
                         dist[u] = dv
                         queue[tail] = u
                         tail += 1
@@ -202,11 +210,14 @@ def _bfs_rows(base: np.ndarray, pitch: int, diagonal: bool, padded: np.ndarray, 
     whether the row type was wide enough. Releases the GIL: threads run chunks side by side."""
     n = padded.shape[0]
     # scratch buffers once per chunk: fresh large allocations cost page faults
-    dist = np.empty(base.shape[0], dtype=np.int32)
+    dist = np.empty_like(base)
     queue = np.empty(n, dtype=np.int32)
+    unseen = base[padded[0]] if n > 0 else 0
+    wall = base[0]
+    limit = min(sentinel, min(unseen, wall)) - 1 if wall > 0 else sentinel - 1
     best = 0
     for r in range(lo, hi):
-        far = _bfs(base, pitch, diagonal, padded[sources[r]], dist, queue)
+        far = _bfs(base, pitch, diagonal, padded[sources[r]], dist, queue, unseen, wall, limit)
         if far > best:
             best = far
         row = out[r]
@@ -252,14 +263,9 @@ def clear_cache() -> None:
 
 
 def _compute_rows(graph: GridGraph, sources: np.ndarray) -> tuple[np.ndarray, int]:
-    if graph.n <= UNREACHABLE_16:
-        # Every distance is below the number of cells, so uint16 always fits.
-        out = np.empty((sources.size, graph.n), dtype=np.uint16)
-        graph.bfs_rows(sources, out, UNREACHABLE_16)
-        return out, UNREACHABLE_16
     out = np.empty((sources.size, graph.n), dtype=np.uint16)
     far = graph.bfs_rows(sources, out, UNREACHABLE_16)
-    if far < UNREACHABLE_16:
+    if far < UNREACHABLE_16 - 2:     # 65534 and 65535 mark walls and unseen cells in the search
         return out, UNREACHABLE_16
     del out  # a maze longer than 65534 steps: redo with wide rows
     out = np.empty((sources.size, graph.n), dtype=np.int32)
@@ -298,7 +304,8 @@ def distance_field(free: np.ndarray, goal: Cell, connectivity: int = 4) -> np.nd
     graph = grid_graph(free, connectivity)
     src = graph.id_of(goal, "goal")
     dist = np.empty(graph.base.size, dtype=np.int32)
-    _bfs(graph.base, graph.width + 2, connectivity == 8, int(graph.padded[src]), dist, np.empty(graph.n, dtype=np.int32))
+    _bfs(graph.base, graph.width + 2, connectivity == 8, int(graph.padded[src]), dist, np.empty(graph.n, dtype=np.int32),
+         -1, -2, UNREACHABLE_32 - 1)
     h, w = graph.free.shape
     return np.maximum(dist.reshape(h + 2, w + 2)[1:-1, 1:-1], -1)
 

@@ -37,6 +37,9 @@ from .prioritized import (copy_into, grow, guide_paths, hm_get, order_by_priorit
 from .types import Limits, Path, Problem
 
 
+SEARCH_MEMORY = 1.0e9        # bytes LaCAM's search tables may take before it gives up
+
+
 @njit(cache=True)
 def _hash_cfg(q: np.ndarray) -> int:
     h = np.uint64(1469598103934665603)
@@ -108,13 +111,14 @@ def _grow1(a: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def _search(nbr, deg, dist, rows, starts, goals, prio0, xs, ys, index, width: int, diagonal: bool, swap: bool,
-            deadline: float, seed: int, max_nodes: int, gbuf, goff, glen):
+            deadline: float, seed: int, max_nodes: int, max_lnodes: int, gbuf, goff, glen):
     """LaCAM's high-level search: (status, configurations from start to goal [T, n]).
 
     Guide paths (robot i: gbuf[goff[i]:goff[i]+glen[i]], glen 0 = none) steer PIBT: a
     robot that is where its guide says at a node's depth tries the guide's next cell first.
 
-    status 0 solved, 1 proved unsolvable (search space exhausted), 2 time limit, 3 node cap."""
+    status 0 solved, 1 proved unsolvable (search space exhausted), 2 time limit, 3 node cap
+    (max_nodes configurations or max_lnodes constraints: the memory bound)."""
     n = nbr.shape[0]
     na = starts.shape[0]
     k = nbr.shape[1] + 1
@@ -200,6 +204,9 @@ def _search(nbr, deg, dist, rows, starts, goals, prio0, xs, ys, index, width: in
         order_by_priority(prio[h], order)
         # lazily add the children of this constraint: the next robot in order, every possible move
         if l_depth[low] < na:
+            if lnodes + k > max_lnodes:
+                status = 3
+                break
             i = order[l_depth[low]]
             v = cfg[h, i]
             m = 0
@@ -345,24 +352,31 @@ def _search(nbr, deg, dist, rows, starts, goals, prio0, xs, ys, index, width: in
     return 0, out
 
 
-def search(inst: Instance, limits: Limits, max_nodes: int = 2**31 - 1, swap: bool = True,
+def search(inst: Instance, limits: Limits, memory: float = SEARCH_MEMORY, swap: bool = True,
            guides: tuple | None = None) -> np.ndarray:
     """LaCAM's search alone: configurations [T, n] (compact ids) from the starts to the goals.
 
+    `memory` bounds the bytes of the search's node tables (a PlanningError when reached);
     `guides` = (flat paths, offsets, lengths) of cell ids, e.g. from `guide_paths`.
     """
+    # a configuration node: n cells (int32) and n priorities (float32) plus its bookkeeping;
+    # a constraint node: five int32
+    max_nodes = int(max(1000, 0.6 * memory / (8 * inst.n + 24)))
+    max_lnodes = int(max(10_000, 0.4 * memory / 20))
     nbr, xs, ys, index, width = kernel_args(inst)
     if guides is None:
         guides = (np.zeros(1, np.int32), np.zeros(inst.n, np.int64), np.zeros(inst.n, np.int64))
     status, hist = _search(nbr, degrees(nbr), inst.table.dist, inst.rows, inst.starts, inst.goals,
                            initial_priorities(inst), xs, ys, index, width, inst.problem.connectivity == 8, swap,
-                           time.perf_counter() + limits.remaining(), inst.problem.seed, max_nodes, *guides)
+                           time.perf_counter() + limits.remaining(), inst.problem.seed, max_nodes,
+                           max_lnodes, *guides)
     if status == 1:
         raise PlanningError(f"lacam: no solution exists for these {inst.n} robots (every configuration explored)")
     if status == 2:
         raise PlanningError(f"lacam: time limit of {limits.seconds:g} s reached without a plan for {inst.n} robots")
     if status == 3:
-        raise PlanningError(f"lacam: node cap of {max_nodes} reached without a plan for {inst.n} robots")
+        raise PlanningError(f"lacam: search memory of {memory / 1e6:.0f} MB used up without a plan "
+                            f"for {inst.n} robots")
     return hist
 
 
