@@ -78,7 +78,8 @@ class GridGraph:
     def bfs_rows(self, sources: np.ndarray, out: np.ndarray, sentinel: int) -> int:
         """BFS from every source into out's rows, on all cores; returns the largest distance."""
         sources = np.ascontiguousarray(sources, dtype=np.int32)
-        args = (self.base16 if out.dtype == np.uint16 else self.base, self.width + 2, self.connectivity == 8, self.padded, sources, out, sentinel)
+        base = self.base16 if out.dtype == np.uint16 else self.base
+        args = (base, self.width + 2, self.connectivity == 8, self.padded, sources, out, sentinel)
         m = sources.size
         chunks = min(m, THREADS)
         if chunks <= 1:
@@ -218,8 +219,7 @@ def _bfs_rows(base: np.ndarray, pitch: int, diagonal: bool, padded: np.ndarray, 
     best = 0
     for r in range(lo, hi):
         far = _bfs(base, pitch, diagonal, padded[sources[r]], dist, queue, unseen, wall, limit)
-        if far > best:
-            best = far
+        best = max(best, far)
         row = out[r]
         for v in range(n):
             d = dist[padded[v]]
@@ -304,8 +304,8 @@ def distance_field(free: np.ndarray, goal: Cell, connectivity: int = 4) -> np.nd
     graph = grid_graph(free, connectivity)
     src = graph.id_of(goal, "goal")
     dist = np.empty(graph.base.size, dtype=np.int32)
-    _bfs(graph.base, graph.width + 2, connectivity == 8, int(graph.padded[src]), dist, np.empty(graph.n, dtype=np.int32),
-         -1, -2, UNREACHABLE_32 - 1)
+    queue = np.empty(graph.n, dtype=np.int32)
+    _bfs(graph.base, graph.width + 2, connectivity == 8, int(graph.padded[src]), dist, queue, -1, -2, UNREACHABLE_32 - 1)
     h, w = graph.free.shape
     return np.maximum(dist.reshape(h + 2, w + 2)[1:-1, 1:-1], -1)
 

@@ -15,7 +15,7 @@ robots meeting head-on in 1-wide aisles livelock.
 tries prioritized planning (near-optimal and cheap when robots rarely meet);
 if that leaves robots unrouted, LaCAM runs with the routed robots' paths as
 guides for PIBT. `refine` is an anytime improvement of a plan: it replans
-groups of delayed robots with space-time A* against the others' paths (large
+groups of delayed robots with SIPP against the others' paths (large
 neighbourhood search), keeping only improvements; it is not part of `lacam`
 because, measured on LaCAM's plans for crowded warehouses, it won under 1 % of
 the sum of costs for as much time again as the search.
@@ -30,12 +30,23 @@ from numba import njit
 from protocol.errors import PlanningError
 
 from .distances import Instance, compile_problem
-from .pibt import (_crosses, degrees, history_to_paths, initial_priorities, pibt, pibt_step, rand_next,
-                   update_priorities)
-from .prioritized import (copy_into, grow, guide_paths, hm_get, order_by_priority, hm_new, st_key, kernel_args, max_expansions, now, reserve,
-                          split_paths, st_astar, unreserve)
+from .pibt import _crosses, degrees, history_to_paths, initial_priorities, pibt, pibt_step, rand_next, update_priorities
+from .prioritized import (
+    copy_into,
+    grow,
+    guide_paths,
+    kernel_args,
+    max_expansions,
+    now,
+    order_by_priority,
+    reserve,
+    rs_find,
+    rs_new,
+    sipp,
+    split_paths,
+    unreserve,
+)
 from .types import Limits, Path, Problem
-
 
 SEARCH_MEMORY = 1.0e9        # bytes LaCAM's search tables may take before it gives up
 
@@ -381,9 +392,13 @@ def search(inst: Instance, limits: Limits, memory: float = SEARCH_MEMORY, swap: 
 
 
 # Robots are first routed one by one (prioritized planning, skipping those it cannot route)
-# when they are sparse enough for that to be cheap; beyond this density LaCAM runs unguided.
-GUIDE_DENSITY = 0.06
-GUIDE_SHARE = 0.5              # at most this share of the time limit goes to the guide paths
+# when they are sparse enough for that to pay: on warehouse-10-20-10-2-1, 400 robots (7 % of
+# the cells) take 0.3-0.7 s that way for a sum of costs 8-30 % above the lower bound, against
+# 0.1-0.2 s and 80 % for LaCAM alone; at 600 robots (10 %) it takes 3 s and gains nothing.
+GUIDE_DENSITY = 0.075
+GUIDE_SHARE = 0.1              # at most this share of the time limit goes to the guide paths
+GUIDED_FACTOR = 2.0            # a guided LaCAM search gets this many times the guides' time ...
+GUIDED_MIN = 0.5               # ... but at least this many seconds, before LaCAM runs unguided
 REFINE_EXPANSIONS = 50_000     # per replanning search in `refine`: a refinement step must stay short
 
 
@@ -395,21 +410,27 @@ def lacam(problem: Problem, limits: Limits) -> list[Path]:
     2. otherwise LaCAM, its PIBT steered by the guide paths of the robots that were routed
        (unguided when too dense), which keeps LaCAM's completeness.
     The result depends only on the problem and its seed, not on the machine's speed (unless
-    the time limit is hit). `refine` can improve a LaCAM plan further, given time.
+    a time budget runs out). `refine` can improve a LaCAM plan further, given time.
     """
     inst = compile_problem(problem)
     if inst.n == 0:
         return []
-    guides = None
     if inst.n <= GUIDE_DENSITY * inst.graph.n:
+        began = time.perf_counter()
         share = Limits(min(limits.remaining(), GUIDE_SHARE * limits.seconds))
         found = guide_paths(inst, share, max_expansions(inst))
         if found is not None:
             buf, poff, plen, complete = found
             if complete:
                 return split_paths(inst, buf, poff, plen)
-            guides = buf, poff, plen
-    return history_to_paths(inst, search(inst, limits, guides=guides))
+            # guides can also lead PIBT astray: give the guided search a bounded try
+            budget = min(limits.remaining() / 2, max(GUIDED_MIN, GUIDED_FACTOR * (time.perf_counter() - began)))
+            try:
+                return history_to_paths(inst, search(inst, Limits(budget), guides=(buf, poff, plen)))
+            except PlanningError:
+                if limits.expired():
+                    raise
+    return history_to_paths(inst, search(inst, limits))
 
 
 @njit(cache=True)
@@ -425,17 +446,13 @@ def _refine(nbr, dist, rows, unreach: int, starts, goals, d0, buf, poff, plen, x
     total = 0
     for a in range(na):
         total += plen[a]
-    keys, vals, meta = hm_new(total)
+    seg, ta, meta = rs_new(n, 2 * total)
     park_time = np.full(n, np.iinfo(np.int32).max, dtype=np.int32)
     park_owner = np.full(n, -1, dtype=np.int32)
-    last_use = np.full(n, -1, dtype=np.int32)
     soc = 0
-    horizon = 0
     for a in range(na):
-        keys, vals, meta = reserve(keys, vals, meta, n, buf[poff[a]:poff[a] + plen[a]], a, park_time, park_owner,
-                                   last_use)
+        ta = reserve(seg, ta, meta, buf[poff[a]:poff[a] + plen[a]], a, park_time, park_owner)
         soc += plen[a] - 1
-        horizon = max(horizon, plen[a])
     used = 0
     for a in range(na):
         used = max(used, poff[a] + plen[a])
@@ -488,7 +505,7 @@ def _refine(nbr, dist, rows, unreach: int, starts, goals, d0, buf, poff, plen, x
         t = 0
         while m < group:
             for dt in range(2):
-                b = hm_get(keys, vals, st_key(v, t + dt))
+                b = rs_find(seg, ta, v, t + dt)
                 if b >= 0 and not in_group[b] and m < group:
                     members[m] = b
                     in_group[b] = True
@@ -528,7 +545,7 @@ def _refine(nbr, dist, rows, unreach: int, starts, goals, d0, buf, poff, plen, x
         for j in range(m):
             b = members[j]
             old += plen[b] - 1
-            unreserve(keys, meta, n, buf[poff[b]:poff[b] + plen[b]], park_time, park_owner)
+            unreserve(seg, ta, meta, buf[poff[b]:poff[b] + plen[b]], park_time, park_owner)
         # replan the group one robot at a time
         ok = True
         new = 0
@@ -545,13 +562,13 @@ def _refine(nbr, dist, rows, unreach: int, starts, goals, d0, buf, poff, plen, x
             if f_max < d0[b]:
                 ok = False
                 break
-            path = st_astar(nbr, dist[rows[b]], unreach, starts[b], goals[b], b, keys, vals, park_time, park_owner,
-                            last_use, xs, ys, index, width, max_expand, horizon + n + 1, f_max, stamp, queue)
+            path = sipp(nbr, dist[rows[b]], unreach, starts[b], goals[b], b, seg, ta, park_time, park_owner,
+                        xs, ys, index, width, max_expand, f_max, stamp, queue)
             if path.shape[0] == 0:
                 ok = False
                 break
             new += path.shape[0] - 1
-            keys, vals, meta = reserve(keys, vals, meta, n, path, b, park_time, park_owner, last_use)
+            ta = reserve(seg, ta, meta, path, b, park_time, park_owner)
             done += 1
             tmp = grow(tmp, filled + path.shape[0])
             copy_into(tmp, filled, path, path.shape[0])
@@ -567,7 +584,6 @@ def _refine(nbr, dist, rows, unreach: int, starts, goals, d0, buf, poff, plen, x
                 b = members[j]
                 poff[b] = used + tmp_off[j]
                 plen[b] = tmp_len[j]
-                horizon = max(horizon, plen[b])
                 fails[b] = 0
             copy_into(buf, used, tmp, filled)
             used += filled
@@ -575,11 +591,10 @@ def _refine(nbr, dist, rows, unreach: int, starts, goals, d0, buf, poff, plen, x
         else:
             for j in range(done):
                 b = members[j]
-                unreserve(keys, meta, n, tmp[tmp_off[j]:tmp_off[j] + tmp_len[j]], park_time, park_owner)
+                unreserve(seg, ta, meta, tmp[tmp_off[j]:tmp_off[j] + tmp_len[j]], park_time, park_owner)
             for j in range(m):
                 b = members[j]
-                keys, vals, meta = reserve(keys, vals, meta, n, buf[poff[b]:poff[b] + plen[b]], b, park_time,
-                                           park_owner, last_use)
+                ta = reserve(seg, ta, meta, buf[poff[b]:poff[b] + plen[b]], b, park_time, park_owner)
             fails[a] += 1
         for j in range(m):
             in_group[members[j]] = False

@@ -73,9 +73,7 @@ def _crosses(u: int, v: int, q_to, occ_now, xs, ys, index, width: int) -> bool:
     if j >= 0 and q_to[j] == q:
         return True
     j = occ_now[q]
-    if j >= 0 and q_to[j] == p:
-        return True
-    return False
+    return bool(j >= 0 and q_to[j] == p)
 
 
 @njit(cache=True)

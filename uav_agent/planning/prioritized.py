@@ -1,19 +1,24 @@
-"""Prioritized planning: robots one after another, each with space-time A* around the paths before it.
+"""Prioritized planning: robots one after another, each routed around the paths before it.
 
 Robots with shorter shortest paths go first. (The usual longer-first order
-was measured worse: a short-trip robot then has to wait until every long trip
-has crossed its goal; on the 450x450 warehouse with 500 robots that gives a
-sum of costs 12 % above the lower bound against 0.02 % shorter-first.) A robot's path is found by A*
-over (cell, step) with the exact distance field as heuristic, avoiding the
-reservation table of earlier paths (vertex, swap and, in 8-connectivity,
-crossing-diagonal conflicts) and the goals where earlier robots have parked
-for good; it may only end on its own goal once no earlier path crosses that
-goal later. When a robot finds no path, it moves to the front of the order
-and the planning restarts (with random reorders after a few tries), up to
-MAX_TRIES orders or the time limit.
+was measured worse: a short-trip robot then has to wait until every long
+trip has crossed its goal; on the 450x450 warehouse with 500 robots that
+gives a sum of costs 12 % above the lower bound against 0.02 %.) A robot's
+path is found by safe interval path planning (SIPP, a space-time A* whose
+states are a cell and a stretch of free steps) with the exact distance field
+as heuristic, avoiding the reservations of earlier paths (vertex, swap and,
+in 8-connectivity, crossing-diagonal conflicts) and the goals where earlier
+robots have parked for good; it may only end on its own goal once no earlier
+path crosses that goal later.
 
-The reservation table and the search are numba kernels shared with the
-LaCAM refinement (`lacam.py`), which replans groups of robots with them.
+A robot that finds no path gets a local repair: the robots walling in its
+start or goal and those in its way are taken out, it is planned, and they are
+planned again after it. If that fails, the robot moves to the front of the
+order and the planning restarts (with random reorders after a few tries), up
+to MAX_TRIES orders or the time limit.
+
+The reservations and the search are numba kernels shared with LaCAM's
+refinement (`lacam.py`), which replans groups of robots with them.
 """
 from __future__ import annotations
 
@@ -31,6 +36,7 @@ from .types import Limits, Path, Problem
 EMPTY = -1
 TOMB = -2
 NEVER = np.iinfo(np.int32).max   # park time of a cell nobody parks on
+UNBOUNDED = 2**40                # an f bound that never cuts a search
 MAX_TRIES = 100                  # orders tried before prioritized planning gives up
 REPAIR_GROUP = 12                # robots a blocked robot may displace (replanned after it)
 WALL_CELLS = 400                 # ... among them robots parked around its start or goal (cells searched)
@@ -118,15 +124,14 @@ def _slot(key: int, mask: int) -> int:
 
 
 @njit(cache=True, inline='always')
-def hm_get(keys: np.ndarray, vals: np.ndarray, key: int) -> int:
+def hm_slot(keys: np.ndarray, key: int) -> int:
+    """The slot holding key, or the empty slot ending its probe (check keys[slot] == key)."""
     mask = keys.shape[0] - 1
     s = _slot(key, mask)
     while True:
         k = keys[s]
-        if k == key:
-            return vals[s]
-        if k == EMPTY:
-            return -1
+        if k == key or k == EMPTY:
+            return s
         s = (s + 1) & mask
 
 
@@ -156,21 +161,6 @@ def hm_put(keys: np.ndarray, vals: np.ndarray, meta: np.ndarray, key: int, val: 
 
 
 @njit(cache=True)
-def hm_del(keys: np.ndarray, meta: np.ndarray, key: int) -> None:
-    mask = keys.shape[0] - 1
-    s = _slot(key, mask)
-    while True:
-        k = keys[s]
-        if k == key:
-            keys[s] = TOMB
-            meta[1] -= 1
-            return
-        if k == EMPTY:
-            return
-        s = (s + 1) & mask
-
-
-@njit(cache=True)
 def hm_new(capacity: int):
     cap = 16
     while cap < 2 * capacity:
@@ -194,57 +184,126 @@ def hm_grow(keys: np.ndarray, vals: np.ndarray, meta: np.ndarray):
     return nk, nv, nm
 
 
-# ---- reservations: (cell, step) -> robot, park times of goals, latest use of each cell ----
+# ---- reservations: for every cell, the steps at which robots hold it, sorted ----
+# A cell's entries (step << 32 | robot) sit in one segment of the arena `ta`; seg[v] is
+# (offset, length, capacity). A full segment moves to the arena's end with twice the room.
+# Sorted per-cell lists answer "who holds v at t" with a short binary search in one cache
+# line, and give the safe intervals (the free stretches between holds) that SIPP needs.
+
+FOREVER = np.int64(1) << np.int64(40)     # the end of the last safe interval of a cell
+
 
 @njit(cache=True)
-def reserve(keys, vals, meta, n: int, path: np.ndarray, agent: int, park_time: np.ndarray,
-            park_owner: np.ndarray, last_use: np.ndarray):
-    """Books a path (its last cell is the robot's goal, held from then on)."""
+def rs_new(n: int, capacity: int):
+    """Empty reservations for n cells: (seg, ta, meta); meta = [arena used, live entries]."""
+    return np.zeros((n, 3), dtype=np.int64), np.empty(max(capacity, 1024), dtype=np.int64), \
+        np.zeros(2, dtype=np.int64)
+
+
+@njit(cache=True, inline='always')
+def rs_lower(seg, ta, v: int, t: int) -> int:
+    """Index in v's list of the first entry at step >= t (the list length if none)."""
+    off = seg[v, 0]
+    lo = 0
+    hi = seg[v, 1]
+    key = np.int64(t) << np.int64(32)
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if ta[off + mid] < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, inline='always')
+def rs_step(seg, ta, v: int, i: int) -> int:
+    """The step of entry i of v's list."""
+    return ta[seg[v, 0] + i] >> np.int64(32)
+
+
+@njit(cache=True, inline='always')
+def rs_find(seg, ta, v: int, t: int) -> int:
+    """The robot holding v at step t, or -1."""
+    i = rs_lower(seg, ta, v, t)
+    if i < seg[v, 1]:
+        x = ta[seg[v, 0] + i]
+        if (x >> np.int64(32)) == t:
+            return np.int64(x & np.int64(0xFFFFFFFF))
+    return -1
+
+
+@njit(cache=True)
+def rs_insert(seg, ta, meta, v: int, t: int, agent: int):
+    """Adds (v, t) -> agent (not already held); returns the arena, which may have moved."""
+    off = seg[v, 0]
+    ln = seg[v, 1]
+    if ln == seg[v, 2]:
+        cap = max(np.int64(4), 2 * seg[v, 2])
+        ta = grow(ta, meta[0] + cap)
+        for i in range(ln):
+            ta[meta[0] + i] = ta[off + i]
+        off = meta[0]
+        seg[v, 0] = off
+        seg[v, 2] = cap
+        meta[0] += cap
+    i = rs_lower(seg, ta, v, t)
+    for j in range(ln, i, -1):
+        ta[off + j] = ta[off + j - 1]
+    ta[off + i] = (np.int64(t) << np.int64(32)) | np.int64(agent)
+    seg[v, 1] = ln + 1
+    meta[1] += 1
+    return ta
+
+
+@njit(cache=True)
+def rs_remove(seg, ta, meta, v: int, t: int) -> None:
+    i = rs_lower(seg, ta, v, t)
+    ln = seg[v, 1]
+    if i < ln and rs_step(seg, ta, v, i) == t:
+        off = seg[v, 0]
+        for j in range(i, ln - 1):
+            ta[off + j] = ta[off + j + 1]
+        seg[v, 1] = ln - 1
+        meta[1] -= 1
+
+
+@njit(cache=True)
+def reserve(seg, ta, meta, path: np.ndarray, agent: int, park_time: np.ndarray, park_owner: np.ndarray):
+    """Books a path (its last cell is the robot's goal, held from then on); returns the arena."""
     for t in range(path.shape[0]):
-        v = path[t]
-        hm_put(keys, vals, meta, st_key(v, t), agent)
-        if hm_full(keys, meta):
-            keys, vals, meta = hm_grow(keys, vals, meta)
-        if t > last_use[v]:
-            last_use[v] = t
+        ta = rs_insert(seg, ta, meta, path[t], t, agent)
     g = path[path.shape[0] - 1]
     park_time[g] = path.shape[0] - 1
     park_owner[g] = agent
-    return keys, vals, meta
+    return ta
 
 
 @njit(cache=True)
-def unreserve(keys, meta, n: int, path: np.ndarray, park_time: np.ndarray, park_owner: np.ndarray) -> None:
-    """Removes a path; last_use stays an upper bound, which only makes goal checks scan further."""
+def unreserve(seg, ta, meta, path: np.ndarray, park_time: np.ndarray, park_owner: np.ndarray) -> None:
     for t in range(path.shape[0]):
-        hm_del(keys, meta, st_key(path[t], t))
+        rs_remove(seg, ta, meta, path[t], t)
     g = path[path.shape[0] - 1]
     park_time[g] = NEVER
     park_owner[g] = -1
 
 
 @njit(cache=True, inline='always')
-def _blocked(keys, vals, n: int, v: int, u: int, t: int, agent: int, park_time, park_owner,
-             xs, ys, index, width: int) -> bool:
-    """Whether moving v -> u between steps t and t+1 conflicts with a reservation."""
-    t1 = t + 1
-    if park_time[u] <= t1 and park_owner[u] != agent:
+def _edge_blocked(seg, ta, v: int, u: int, t: int, xs, ys, index, width: int) -> bool:
+    """Whether the move v -> u between steps t and t+1 swaps with, or (diagonally) crosses,
+    a reserved move."""
+    b = rs_find(seg, ta, v, t + 1)
+    if b >= 0 and rs_find(seg, ta, u, t) == b:
         return True
-    if hm_get(keys, vals, st_key(u, t1)) >= 0:
-        return True
-    if u != v:
-        b = hm_get(keys, vals, st_key(v, t1))
-        if b >= 0 and hm_get(keys, vals, st_key(u, t)) == b:
-            return True  # swap
-        if xs[u] != xs[v] and ys[u] != ys[v]:
-            p = index[ys[v] * width + xs[u]]
-            q = index[ys[u] * width + xs[v]]
-            b = hm_get(keys, vals, st_key(p, t))
-            if b >= 0 and hm_get(keys, vals, st_key(q, t1)) == b:
-                return True  # crossing diagonals
-            b = hm_get(keys, vals, st_key(q, t))
-            if b >= 0 and hm_get(keys, vals, st_key(p, t1)) == b:
-                return True
+    if xs[u] != xs[v] and ys[u] != ys[v]:
+        p = index[ys[v] * width + xs[u]]
+        q = index[ys[u] * width + xs[v]]
+        b = rs_find(seg, ta, p, t)
+        if b >= 0 and rs_find(seg, ta, q, t + 1) == b:
+            return True
+        b = rs_find(seg, ta, q, t)
+        if b >= 0 and rs_find(seg, ta, p, t + 1) == b:
+            return True
     return False
 
 
@@ -328,113 +387,196 @@ def parked_reach(start: int, goal: int, agent: int, nbr, park_time, park_owner, 
     return False
 
 
-@njit(cache=True)
-def st_astar(nbr, drow, unreach: int, start: int, goal: int, agent: int, keys, vals,
-             park_time, park_owner, last_use, xs, ys, index, width: int,
-             max_expand: int, t_max: int, f_max: int, stamp, queue) -> np.ndarray:
-    """Space-time A* from (start, 0) to goal; returns the cell ids per step, or an empty array
-    (no path arriving by step f_max, or more than max_expand expansions).
+@njit(cache=True, inline='always')
+def _interval(seg, ta, u: int, iu: int, lu: int) -> tuple:
+    """The first and last step of u's safe interval iu (the one after iu entries of its list)."""
+    lo = 0 if iu == 0 else rs_step(seg, ta, u, iu - 1) + 1
+    hi = FOREVER if iu == lu else rs_step(seg, ta, u, iu) - 1
+    return lo, hi
 
-    Every step costs 1 and (cell, step) determines the cost so far, so a state is
-    generated at most once. Ties on f go to the deeper state (closer to the goal).
-    The robot cannot finish before the last step another robot uses its goal,
-    so f = max(t + h, that step + 1): without it the search would fill the whole
-    space-time volume below that step before diving.
-    Partial expansion (PEA*): a popped state generates only the successors whose
-    f equals its own and goes back into the heap with the next larger f, so the
-    side steps and waits of an unobstructed robot are never checked or stored.
-    A search that drags on first checks `parked_reach`, so that a robot walled in by
-    parked robots fails fast. stamp (n+1) and queue (n) are scratch arrays for that check.
+
+@njit(cache=True)
+def _reach(seg, ta, v: int, t: int, last: int, u: int, iu: int, parked: bool, xs, ys, index, width: int):
+    """From v (reached at step t, free until step `last`), the first of u's safe intervals from
+    index iu on that the robot can move into: (interval index, arrival step), or (-1, -1)."""
+    lu = seg[u, 1]
+    while iu <= lu:
+        if iu == lu and parked:
+            break           # no endless interval where another robot parks
+        lo, hi = _interval(seg, ta, u, iu, lu)
+        arrive = max(t + 1, lo)
+        if arrive > last + 1:
+            break
+        limit = min(hi, last + 1)
+        while arrive <= limit and _edge_blocked(seg, ta, v, u, arrive - 1, xs, ys, index, width):
+            arrive += 1
+        if arrive <= limit:
+            return iu, arrive
+        iu += 1
+    return -1, -1
+
+
+@njit(cache=True)
+def sipp(nbr, drow, unreach: int, start: int, goal: int, agent: int, seg, ta, park_time, park_owner,
+         xs, ys, index, width: int, max_expand: int, f_max: int, stamp, queue) -> np.ndarray:
+    """Safe interval path planning (Phillips & Likhachev, ICRA 2011) from (start, step 0) to goal.
+
+    Returns the cell ids per step, or an empty array (no path arriving by step f_max, or more
+    than max_expand expansions). A state is a cell and one of its safe intervals (a maximal
+    stretch of steps nobody holds it; the last one is cut at the step another robot parks
+    there), reached at the earliest step; waiting is implicit, so a robot that must let others
+    pass costs one state, not one per step. Swaps and crossing diagonals are checked on each
+    move; a blocked move leaves one step later. The robot can only finish in its goal's last,
+    endless interval; f = max(arrival + distance, that interval's start). Ties go to the
+    later arrival (closer to the goal).
+    Successors are generated lazily: an expansion creates only the states that keep its f (the
+    moves straight on); for the other neighbours, and for every interval after the first one
+    a neighbour can enter, it leaves a deferred record (a heap entry < 0) that is worked out
+    when its lower bound comes up. Busy cells have dozens of intervals and most side steps are
+    never needed.
+    A search that drags on first checks `parked_reach`, so that a robot walled in by parked
+    robots fails fast; stamp (n+1) and queue (n) are scratch arrays for that check.
     """
     n = nbr.shape[0]
-    s = last_use[goal]
-    while s >= 0 and hm_get(keys, vals, st_key(goal, s)) < 0:
-        s -= 1
-    last_use[goal] = s  # tightened: unreserve leaves it an upper bound
-    free_from = s + 1
-    k = nbr.shape[1]
-    cap = 1024
-    nv = np.empty(cap, dtype=np.int32)
-    nt = np.empty(cap, dtype=np.int32)
+    gl = seg[goal, 1]
+    free_from = 0 if gl == 0 else rs_step(seg, ta, goal, gl - 1) + 1
+    cap = 256
+    nv = np.empty(cap, dtype=np.int32)        # cell
+    ni = np.empty(cap, dtype=np.int32)        # safe interval index
+    na_ = np.empty(cap, dtype=np.int64)       # arrival step
+    nl = np.empty(cap, dtype=np.int64)        # last step of the interval
     npar = np.empty(cap, dtype=np.int32)
+    dn = np.empty(cap, dtype=np.int32)        # deferred records: node, neighbour slot, next interval
+    dj = np.empty(cap, dtype=np.int32)
+    di = np.empty(cap, dtype=np.int32)
     hk = np.empty(cap, dtype=np.int64)
     hn = np.empty(cap, dtype=np.int32)
     sk, sv, sm = hm_new(cap)
     big = np.int64(1) << np.int64(31)
+    i0 = rs_lower(seg, ta, start, 0)
     nv[0] = start
-    nt[0] = 0
+    ni[0] = i0
+    na_[0] = 0
+    nl[0] = _interval(seg, ta, start, i0, seg[start, 1])[1]
     npar[0] = -1
     nodes = 1
+    deferred = 0
     hk[0] = np.int64(max(drow[start], free_from)) * big + (big - 1)
     hn[0] = 0
     hsize = 1
-    hm_put(sk, sv, sm, st_key(start, 0), 0)
+    hm_put(sk, sv, sm, st_key(start, i0), 0)
     expanded = 0
-    # late enough that the check (a sweep of the map) costs less than the search so far
     check_at = 2 * drow[start] + 500 + n // 8
-    no_more = np.int64(1) << np.int64(62)
     while hsize > 0:
-        node = hn[0]
+        item = hn[0]
         f = hk[0] // big
         if f > f_max:
             break
         _heap_pop(hk, hn, hsize)
         hsize -= 1
-        v = nv[node]
-        t = nt[node]
-        if v == goal and t >= free_from:
-            path = np.empty(t + 1, dtype=np.int32)
-            m = node
-            while m >= 0:
-                path[nt[m]] = nv[m]
-                m = npar[m]
-            return path
-        expanded += 1
-        if expanded > max_expand:
-            break
-        if expanded == check_at and not parked_reach(start, goal, agent, nbr, park_time, park_owner, stamp, queue):
-            break
-        if t >= t_max:
-            continue
-        f_next = no_more
-        for j in range(k + 1):
-            u = v if j == k else nbr[v, j]
+        if item >= 0:
+            node = item
+            v = nv[node]
+            if sv[hm_slot(sk, st_key(v, ni[node]))] != node:
+                continue        # superseded by an earlier arrival in the same interval
+            t = na_[node]
+            if v == goal and ni[node] == seg[v, 1]:
+                path = np.empty(t + 1, dtype=np.int32)
+                m = node
+                end = t
+                while m >= 0:
+                    for s in range(na_[m], end + 1):
+                        path[s] = nv[m]
+                    end = na_[m] - 1
+                    m = npar[m]
+                return path
+            expanded += 1
+            if expanded > max_expand:
+                break
+            if expanded == check_at and not parked_reach(start, goal, agent, nbr, park_time, park_owner, stamp,
+                                                         queue):
+                break
+            j_lo = 0
+            j_hi = nbr.shape[1]
+        else:
+            rec = -item - 1
+            node = dn[rec]
+            v = nv[node]
+            t = na_[node]
+            j_lo = dj[rec]
+            j_hi = j_lo + 1
+        last = nl[node]
+        for j in range(j_lo, j_hi):
+            u = nbr[v, j]
             if u < 0:
-                continue
+                break
             hu = drow[u]
             if hu >= unreach:
                 continue
-            fu = max(t + 1 + hu, free_from)
-            if fu != f:
-                if fu > f and fu < f_next:
-                    f_next = fu
+            parked = park_owner[u] >= 0 and park_owner[u] != agent
+            if item >= 0 and max(t + 1 + hu, free_from) > f:
+                # a detour or a wait: only a deferred record for now (most are never needed)
+                if deferred == dn.shape[0]:
+                    dn = grow(dn, deferred + 1)
+                    dj = grow(dj, deferred + 1)
+                    di = grow(di, deferred + 1)
+                dn[deferred] = node
+                dj[deferred] = j
+                di[deferred] = -1
+                if hsize == hk.shape[0]:
+                    hk, hn = _heap_grow(hk, hn)
+                _heap_push(hk, hn, hsize, np.int64(max(t + 1 + hu, free_from)) * big + (big - 1 - (t + 1)),
+                           -deferred - 1)
+                hsize += 1
+                deferred += 1
                 continue
-            if _blocked(keys, vals, n, v, u, t, agent, park_time, park_owner, xs, ys, index, width):
+            first = rs_lower(seg, ta, u, t + 1) if item >= 0 or di[-item - 1] < 0 else di[-item - 1]
+            iu, arrive = _reach(seg, ta, v, t, last, u, first, parked, xs, ys, index, width)
+            if iu < 0:
                 continue
-            key = st_key(u, t + 1)
-            if hm_get(sk, sv, key) >= 0:
-                continue
-            if nodes == nv.shape[0]:
-                nv = grow(nv, nodes + 1)
-                nt = grow(nt, nodes + 1)
-                npar = grow(npar, nodes + 1)
-            nv[nodes] = u
-            nt[nodes] = t + 1
-            npar[nodes] = node
-            hm_put(sk, sv, sm, key, nodes)
-            if hm_full(sk, sm):
-                sk, sv, sm = hm_grow(sk, sv, sm)
-            if hsize == hk.shape[0]:
-                hk, hn = _heap_grow(hk, hn)
-            _heap_push(hk, hn, hsize, np.int64(fu) * big + (big - 1 - (t + 1)), nodes)
-            hsize += 1
-            nodes += 1
-        if f_next != no_more:
-            # come back for the costlier successors only if the cheaper ones lead nowhere
-            if hsize == hk.shape[0]:
-                hk, hn = _heap_grow(hk, hn)
-            _heap_push(hk, hn, hsize, f_next * big + (big - 1 - t), node)
-            hsize += 1
+            key = st_key(u, iu)
+            s_ = hm_slot(sk, key)
+            known = sv[s_] if sk[s_] == key else -1
+            if known < 0 or na_[known] > arrive:
+                if nodes == nv.shape[0]:
+                    nv = grow(nv, nodes + 1)
+                    ni = grow(ni, nodes + 1)
+                    na_ = grow(na_, nodes + 1)
+                    nl = grow(nl, nodes + 1)
+                    npar = grow(npar, nodes + 1)
+                lu = seg[u, 1]
+                nv[nodes] = u
+                ni[nodes] = iu
+                na_[nodes] = arrive
+                nl[nodes] = _interval(seg, ta, u, iu, lu)[1]
+                npar[nodes] = node
+                hm_put(sk, sv, sm, key, nodes)
+                if hm_full(sk, sm):
+                    sk, sv, sm = hm_grow(sk, sv, sm)
+                if hsize == hk.shape[0]:
+                    hk, hn = _heap_grow(hk, hn)
+                _heap_push(hk, hn, hsize, np.int64(max(arrive + hu, free_from)) * big + (big - 1 - arrive), nodes)
+                hsize += 1
+                nodes += 1
+            # the later intervals of u, for when this one leads nowhere
+            lu = seg[u, 1]
+            if iu + 1 <= lu and not (iu + 1 == lu and parked):
+                lo = rs_step(seg, ta, u, iu) + 1
+                if lo <= last + 1:
+                    if deferred == dn.shape[0]:
+                        dn = grow(dn, deferred + 1)
+                        dj = grow(dj, deferred + 1)
+                        di = grow(di, deferred + 1)
+                    dn[deferred] = node
+                    dj[deferred] = j
+                    di[deferred] = iu + 1
+                    if hsize == hk.shape[0]:
+                        hk, hn = _heap_grow(hk, hn)
+                    at = max(t + 1, lo)
+                    _heap_push(hk, hn, hsize, np.int64(max(at + hu, free_from)) * big + (big - 1 - at),
+                               -deferred - 1)
+                    hsize += 1
+                    deferred += 1
     return np.empty(0, dtype=np.int32)
 
 
@@ -449,7 +591,7 @@ def _walls(a: int, src: int, nbr, park_owner, planned, out, m: int, stamp, queue
     queue[0] = src
     head = 0
     tail = 1
-    while head < tail and tail < WALL_CELLS and m < out.shape[0]:
+    while head < tail < WALL_CELLS and m < out.shape[0]:
         v = queue[head]
         head += 1
         for j in range(nbr.shape[1]):
@@ -476,7 +618,7 @@ def _walls(a: int, src: int, nbr, park_owner, planned, out, m: int, stamp, queue
 
 
 @njit(cache=True)
-def blockers(a: int, nbr, drow, start: int, goal: int, keys, vals, park_time, park_owner, planned,
+def blockers(a: int, nbr, drow, start: int, goal: int, seg, ta, park_time, park_owner, planned,
              out: np.ndarray, rng, stamp, queue) -> int:
     """Robots in the way of robot a: those parked around its goal or start, then along one of
     its shortest paths (random ties) those that hold a cell at the matching step or the next
@@ -489,7 +631,7 @@ def blockers(a: int, nbr, drow, start: int, goal: int, keys, vals, park_time, pa
     t = 0
     while m < out.shape[0]:
         for dt in range(2):
-            b = hm_get(keys, vals, st_key(v, t + dt))
+            b = rs_find(seg, ta, v, t + dt)
             if b >= 0 and b != a and planned[b]:
                 new = True
                 for j in range(m):
@@ -537,10 +679,9 @@ def _plan_in_order(nbr, dist, rows, unreach: int, starts, goals, order, xs, ys, 
     """
     n = nbr.shape[0]
     na = starts.shape[0]
-    keys, vals, meta = hm_new(1024)
+    seg, ta, meta = rs_new(n, 4 * n)
     park_time = np.full(n, NEVER, dtype=np.int32)
     park_owner = np.full(n, -1, dtype=np.int32)
-    last_use = np.full(n, -1, dtype=np.int32)
     poff = np.zeros(na, dtype=np.int64)
     plen = np.zeros(na, dtype=np.int64)
     planned = np.zeros(na, dtype=np.bool_)
@@ -555,19 +696,16 @@ def _plan_in_order(nbr, dist, rows, unreach: int, starts, goals, order, xs, ys, 
     stamp = np.zeros(n + 1, dtype=np.int32)     # [0] the current mark, [1:] a mark per cell
     queue = np.empty(n, dtype=np.int32)
     used = 0
-    horizon = 0
     first_failed = -1
     for r in range(order.shape[0]):
         if now() > deadline:
             return -2, buf, poff, plen
         a = order[r]
-        # after the last reserved step the world is static; nothing beyond a full sweep helps
-        t_max = horizon + n + 1
-        path = st_astar(nbr, dist[rows[a]], unreach, starts[a], goals[a], a, keys, vals, park_time, park_owner,
-                        last_use, xs, ys, index, width, max_expand, t_max, t_max, stamp, queue)
+        path = sipp(nbr, dist[rows[a]], unreach, starts[a], goals[a], a, seg, ta, park_time, park_owner,
+                    xs, ys, index, width, max_expand, UNBOUNDED, stamp, queue)
         m = 0
         if path.shape[0] == 0:
-            m = blockers(a, nbr, dist[rows[a]], starts[a], goals[a], keys, vals, park_time, park_owner, planned,
+            m = blockers(a, nbr, dist[rows[a]], starts[a], goals[a], seg, ta, park_time, park_owner, planned,
                          group, rng, stamp, queue)
             # replan the blockers in their own priority order
             for j in range(1, m):
@@ -581,14 +719,13 @@ def _plan_in_order(nbr, dist, rows, unreach: int, starts, goals, order, xs, ys, 
                 b = group[j]
                 old_off[j] = poff[b]
                 old_len[j] = plen[b]
-                unreserve(keys, meta, n, buf[poff[b]:poff[b] + plen[b]], park_time, park_owner)
+                unreserve(seg, ta, meta, buf[poff[b]:poff[b] + plen[b]], park_time, park_owner)
                 planned[b] = False
             if m > 0:
-                path = st_astar(nbr, dist[rows[a]], unreach, starts[a], goals[a], a, keys, vals, park_time,
-                                park_owner, last_use, xs, ys, index, width, max_expand, t_max, t_max, stamp, queue)
+                path = sipp(nbr, dist[rows[a]], unreach, starts[a], goals[a], a, seg, ta, park_time, park_owner,
+                            xs, ys, index, width, max_expand, UNBOUNDED, stamp, queue)
         if path.shape[0] > 0:
-            keys, vals, meta = reserve(keys, vals, meta, n, path, a, park_time, park_owner, last_use)
-            horizon = max(horizon, path.shape[0])
+            ta = reserve(seg, ta, meta, path, a, park_time, park_owner)
             buf = grow(buf, used + path.shape[0])
             copy_into(buf, used, path, path.shape[0])
             poff[a] = used
@@ -598,13 +735,11 @@ def _plan_in_order(nbr, dist, rows, unreach: int, starts, goals, order, xs, ys, 
             done = 0
             for j in range(m):
                 b = group[j]
-                t_max = horizon + n + 1
-                p = st_astar(nbr, dist[rows[b]], unreach, starts[b], goals[b], b, keys, vals, park_time,
-                             park_owner, last_use, xs, ys, index, width, max_expand, t_max, t_max, stamp, queue)
+                p = sipp(nbr, dist[rows[b]], unreach, starts[b], goals[b], b, seg, ta, park_time, park_owner,
+                         xs, ys, index, width, max_expand, UNBOUNDED, stamp, queue)
                 if p.shape[0] == 0:
                     break
-                keys, vals, meta = reserve(keys, vals, meta, n, p, b, park_time, park_owner, last_use)
-                horizon = max(horizon, p.shape[0])
+                ta = reserve(seg, ta, meta, p, b, park_time, park_owner)
                 buf = grow(buf, used + p.shape[0])
                 copy_into(buf, used, p, p.shape[0])
                 poff[b] = used
@@ -617,16 +752,15 @@ def _plan_in_order(nbr, dist, rows, unreach: int, starts, goals, order, xs, ys, 
             # the repair failed: take back what it planned, restore the blockers' old paths
             for j in range(done):
                 b = group[j]
-                unreserve(keys, meta, n, buf[poff[b]:poff[b] + plen[b]], park_time, park_owner)
-            unreserve(keys, meta, n, buf[poff[a]:poff[a] + plen[a]], park_time, park_owner)
+                unreserve(seg, ta, meta, buf[poff[b]:poff[b] + plen[b]], park_time, park_owner)
+            unreserve(seg, ta, meta, buf[poff[a]:poff[a] + plen[a]], park_time, park_owner)
             planned[a] = False
             plen[a] = 0
         for j in range(m):
             b = group[j]
             poff[b] = old_off[j]
             plen[b] = old_len[j]
-            keys, vals, meta = reserve(keys, vals, meta, n, buf[poff[b]:poff[b] + plen[b]], b, park_time,
-                                       park_owner, last_use)
+            ta = reserve(seg, ta, meta, buf[poff[b]:poff[b] + plen[b]], b, park_time, park_owner)
             planned[b] = True
         if not skip_failures:
             return a, buf, poff, plen
