@@ -581,6 +581,18 @@ def sipp(nbr, drow, unreach: int, start: int, goal: int, agent: int, seg, ta, pa
 
 
 @njit(cache=True)
+def _add_new(out: np.ndarray, m: int, b: int) -> int:
+    """Appends robot b to out[:m] unless it is there already or out is full; returns the count."""
+    if m >= out.shape[0]:
+        return m
+    for k in range(m):
+        if out[k] == b:
+            return m
+    out[m] = b
+    return m + 1
+
+
+@njit(cache=True)
 def _walls(a: int, src: int, nbr, park_owner, planned, out, m: int, stamp, queue) -> int:
     """Adds to out[m:] the robots parked on the rim of the region around src that is not
     parked on (breadth-first, nearest first, a few hundred cells at most)."""
@@ -603,14 +615,8 @@ def _walls(a: int, src: int, nbr, park_owner, planned, out, m: int, stamp, queue
             vis[u] = mark
             b = park_owner[u]
             if b >= 0 and b != a:
-                if planned[b] and m < out.shape[0]:
-                    new = True
-                    for k in range(m):
-                        if out[k] == b:
-                            new = False
-                    if new:
-                        out[m] = b
-                        m += 1
+                if planned[b]:
+                    m = _add_new(out, m, b)
                 continue
             queue[tail] = u
             tail += 1
@@ -633,22 +639,10 @@ def blockers(a: int, nbr, drow, start: int, goal: int, seg, ta, park_time, park_
         for dt in range(2):
             b = rs_find(seg, ta, v, t + dt)
             if b >= 0 and b != a and planned[b]:
-                new = True
-                for j in range(m):
-                    if out[j] == b:
-                        new = False
-                if new and m < out.shape[0]:
-                    out[m] = b
-                    m += 1
+                m = _add_new(out, m, b)
         b = park_owner[v]
         if b >= 0 and b != a and planned[b]:
-            new = True
-            for j in range(m):
-                if out[j] == b:
-                    new = False
-            if new and m < out.shape[0]:
-                out[m] = b
-                m += 1
+            m = _add_new(out, m, b)
         if v == goal:
             break
         nxt = -1
