@@ -66,6 +66,9 @@ def _run_uav(a) -> int:
                         connectivity=a.connectivity, time_limit_s=a.time_limit, fallback=not a.no_fallback,
                         seed=a.seed, out=Path(a.out) if a.out else None, tick_timeout_s=a.tick_timeout)
     report = Mission(cfg).run()
+    from .mission import summary
+
+    print(summary(report, cfg.out), flush=True)
     return 0 if report["completed"] else 1
 
 

@@ -382,3 +382,21 @@ def write_outputs(out: Path, report: dict[str, Any], frames: list[CameraFrame], 
     goals = {rid: tuple(g) for rid, g in zip(ids, result.goals)}
     visualize.replay_gif(out / "replay.gif", free, executed, goals)
     (out / "report.json").write_text(json.dumps(report, indent=1))
+
+
+def summary(report: dict[str, Any], out: Path | None) -> str:
+    """The few lines a person reads at the end of a mission."""
+    m = report["plan"]["metrics"]
+    t = report["timings"]
+    lines = [
+        f"mission {'COMPLETED' if report['completed'] else 'FAILED'}: {len(report['done'])}/{report['robots']} robots "
+        f"at their goals in {report['ticks']} ticks, collisions {report['collisions']}",
+        f"  plan: {report['plan'].get('planner', '?')}, sum of costs {m['sum_of_costs']} "
+        f"(lower bound {m.get('lower_bound', '?')}), makespan {m['makespan']}",
+        f"  uav: armed {report['uav']['armed']}, max altitude {report['uav']['max_altitude_m']} m, "
+        f"landed {report['uav']['landed']}",
+        "  time: " + ", ".join(f"{k} {v:.2f}s" for k, v in t.items()),
+    ]
+    if out:
+        lines.append(f"  outputs: {out}/report.json, overhead.png, paths.png, replay.gif")
+    return "\n".join(lines)
