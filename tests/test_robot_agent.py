@@ -203,7 +203,7 @@ def test_pool_process_over_zenoh_with_a_conflict(tmp_path):
                 assert last.cell != paths[r][-1] and not uav.dones.get(r)
             assert set(uav.dones) == {0, 1}
             uav.end(False, "test over")
-            assert proc.wait(5) == 0
+            assert proc.wait(15) == 0
             assert "mission ended: test over" in proc.stdout.read()
         finally:
             stop_process(proc)

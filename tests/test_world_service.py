@@ -199,7 +199,7 @@ def test_world_process_serves_and_leaves_after_the_uav():
             rec = decode(hub.transport.request(hub.keys.record, encode(RecordRequest()), 5)[0], Record)
             assert len(rec.truth["robots"]) == 3
             uav.leave()
-            assert proc.wait(5) == 0
+            assert proc.wait(15) == 0  # generous: CI machines are loaded; the usual is well under 1 s
             assert "mission ended" in proc.stdout.read()
         finally:
             stop_process(proc)
@@ -212,7 +212,7 @@ def test_world_process_stops_on_sigterm_and_on_a_lone_mission_end():
         try:
             assert wait_alive(hub, hub.keys.alive_world)
             proc.send_signal(signal.SIGTERM)
-            assert proc.wait(5) == 0
+            assert proc.wait(15) == 0  # generous: CI machines are loaded; the usual is well under 1 s
         finally:
             stop_process(proc)
         proc = start_world(hub, "--mavlink", "none")
@@ -220,7 +220,7 @@ def test_world_process_stops_on_sigterm_and_on_a_lone_mission_end():
             assert wait_alive(hub, hub.keys.alive_world)
             hub.transport.put(hub.keys.mission_end, b"garbage first")
             hub.transport.put(hub.keys.mission_end, encode(MissionEnd(completed=False, reason="test")))
-            assert proc.wait(5) == 0  # no UAV was ever seen: a short grace, then gone
+            assert proc.wait(15) == 0  # no UAV was ever seen: a short grace, then gone
             assert "warning: world:" in proc.stderr.read()
         finally:
             stop_process(proc)
@@ -240,7 +240,7 @@ def test_world_with_its_vehicle_over_zenoh():
             rec = decode(hub.transport.request(hub.keys.record, encode(RecordRequest()), 5)[0], Record)
             assert rec.truth["vehicle"]["armed"] is False and rec.truth["vehicle"]["url"] == mav
             proc.send_signal(signal.SIGTERM)
-            assert proc.wait(5) == 0
+            assert proc.wait(15) == 0  # generous: CI machines are loaded; the usual is well under 1 s
         finally:
             stop_process(proc)
 
@@ -275,7 +275,7 @@ def test_world_leaves_when_the_uav_vanishes_mid_mission():
             time.sleep(0.3)
             assert proc.poll() is None
             uav.leave()  # no MissionEnd: the UAV crashed
-            assert proc.wait(5) == 0
+            assert proc.wait(15) == 0  # generous: CI machines are loaded; the usual is well under 1 s
             assert "the UAV went away" in proc.stdout.read()
         finally:
             stop_process(proc)
