@@ -6,7 +6,6 @@ the launcher (PR_SET_PDEATHSIG), and Ctrl-C or any failing part stops them all.
 """
 from __future__ import annotations
 
-import ctypes
 import json
 import math
 import os
@@ -22,6 +21,8 @@ from pathlib import Path
 from protocol.errors import MissionError
 from protocol.keys import new_fleet_name
 
+from .children import die_with_parent
+
 GRACE_S = 3.0
 
 
@@ -29,13 +30,6 @@ def free_port(kind: int = socket.SOCK_STREAM) -> int:
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def _die_with_parent() -> None:
-    try:
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-    except OSError:
-        pass
 
 
 @dataclass
@@ -80,7 +74,7 @@ class Launcher:
         out = open(log, "wb") if log else None
         proc = subprocess.Popen([sys.executable, "-m", "uav_agent.cli", *argv], stdout=out or None,
                                 stderr=subprocess.STDOUT if out else None, stdin=subprocess.DEVNULL,
-                                preexec_fn=_die_with_parent)
+                                preexec_fn=die_with_parent)
         if out:
             out.close()
         child = Child(name, proc, log)

@@ -249,7 +249,7 @@ class Mission:
         ids = sorted(model.robots)
         planner = self.cfg.planner or DEFAULT_PLANNER
         if self._warm.is_alive():
-            self.progress.phase("plan", "compiling the planners (first run on this machine only, ~50 s; "
+            self.progress.phase("plan", "compiling the planners (first run on this machine only, ~30 s; "
                                         "later runs load numba's cache)")
         self._warm.join()
         self._status("plan", message=f"{len(ids)} robots, planner {planner}, assignment {self.cfg.assign}")

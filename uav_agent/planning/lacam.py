@@ -637,19 +637,24 @@ def refine(inst: Instance, buf, poff, plen, seconds: float, target_ratio: float 
                    time.perf_counter() + seconds, target, inst.problem.seed, group)
 
 
-def warm_up() -> float:
-    """Loads every kernel of the fast planners on a tiny problem, compiling it the first time
+def warm_up(parts: tuple[str, ...] = ("guides", "search", "refine", "pibt")) -> float:
+    """Loads the kernels of the fast planners on a tiny problem, compiling them the first time
     numba sees this code (tens of seconds; afterwards about a second from numba's cache), so
-    that a timed call does not pay for it. Returns the seconds it took."""
+    that a timed call does not pay for it. `parts` picks kernel families, so that two
+    processes can compile different ones at once. Returns the seconds it took."""
     began = time.perf_counter()
     free = np.ones((6, 6), dtype=bool)
     free[2:4, 1:5] = False
     for conn in (4, 8):
         problem = Problem(free, [(0, 0), (5, 5), (0, 5)], [(5, 5), (0, 0), (5, 0)], connectivity=conn)
         inst = compile_problem(problem)
-        guide_paths(inst, Limits(600.0), 1000)
-        buf, poff, plen = trimmed(inst, search(inst, Limits(600.0)))
-        refine(inst, buf, poff, plen, 0.001)
-        pibt(problem, Limits(600.0))
+        if "guides" in parts:
+            guide_paths(inst, Limits(600.0), 1000)
+        if "search" in parts or "refine" in parts:
+            buf, poff, plen = trimmed(inst, search(inst, Limits(600.0)))
+            if "refine" in parts:
+                refine(inst, buf, poff, plen, 0.001)
+        if "pibt" in parts:
+            pibt(problem, Limits(600.0))
     return time.perf_counter() - began
 

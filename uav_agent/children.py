@@ -1,0 +1,13 @@
+"""Child processes that must not outlive the process that started them."""
+from __future__ import annotations
+
+import ctypes
+import signal
+
+
+def die_with_parent() -> None:
+    """`preexec_fn` for subprocess.Popen: the kernel sends SIGTERM when the parent dies (Linux)."""
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
