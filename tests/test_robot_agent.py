@@ -16,6 +16,7 @@ from protocol.transport import MemoryBus, MemoryTransport
 from robot_agents.agent import format_ids, parse_ids, run_robots
 from robot_agents.robot import RobotMachine
 from sim_world.world import World, WorldConfig
+from scenes import open_map
 
 REPO = Path(__file__).resolve().parents[1]
 T = 5.0
@@ -101,13 +102,6 @@ def test_id_ranges():
 
 
 # ------------------------------------------------- the pool and the world
-def open_map(tmp_path: Path, starts, goals, w=8, h=6):
-    m = tmp_path / "open.map"
-    m.write_text(f"type octile\nheight {h}\nwidth {w}\nmap\n" + "\n".join(["." * w] * h) + "\n")
-    s = tmp_path / "open.scen"
-    s.write_text("version 1\n" + "".join(f"0\topen.map\t{w}\t{h}\t{a[0]}\t{a[1]}\t{b[0]}\t{b[1]}\t0\n"
-                                         for a, b in zip(starts, goals)))
-    return str(m), str(s)
 
 
 ROWS = 4  # robot r walks row r from x = 0 to x = 5: plans without conflicts

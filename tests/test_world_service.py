@@ -19,18 +19,9 @@ from protocol.messages import (CameraFrame, CameraRequest, MissionEnd, MoveReque
                                WorldInfo, WorldInfoRequest, decode, encode)
 from protocol.transport import MemoryBus, MemoryTransport, ZenohTransport
 from sim_world.world import World, WorldConfig
+from scenes import open_map
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def open_map(tmp_path: Path, starts, goals, w=8, h=6) -> tuple[str, str]:
-    """An obstacle-free map with a scenario, so tests choose where robots stand."""
-    m = tmp_path / "open.map"
-    m.write_text(f"type octile\nheight {h}\nwidth {w}\nmap\n" + "\n".join(["." * w] * h) + "\n")
-    s = tmp_path / "open.scen"
-    s.write_text("version 1\n" + "".join(f"0\topen.map\t{w}\t{h}\t{a[0]}\t{a[1]}\t{b[0]}\t{b[1]}\t0\n"
-                                         for a, b in zip(starts, goals)))
-    return str(m), str(s)
 
 
 @pytest.fixture

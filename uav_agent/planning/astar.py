@@ -84,6 +84,12 @@ def _search(grid, width, start, goal, diagonal):
                 heapq.heappush(heap, (ng + h, -ng, q))
     if not found:
         return np.empty(0, dtype=np.int64)
+    return trace_back(parent, start, goal)
+
+
+@njit(cache=True)
+def trace_back(parent, start, goal):
+    """The node sequence start..goal read backwards through a search's parent array."""
     n = 1
     p = goal
     while p != start:

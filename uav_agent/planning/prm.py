@@ -26,7 +26,7 @@ from scipy.spatial import cKDTree
 
 from protocol.errors import PlanningError
 
-from .astar import check_cell, padded
+from .astar import check_cell, padded, trace_back
 from .types import Cell, Limits
 
 # Without a radius or k, the radius is the one whose disc would hold this many
@@ -178,17 +178,7 @@ def _graph_astar(xs, ys, indptr, indices, weights, start_nodes, start_w, goal_w)
                 heapq.heappush(heap, (ng + math.sqrt((xs[v] - tx) ** 2 + (ys[v] - ty) ** 2), v))
     if not closed[t]:
         return np.empty(0, dtype=np.int64)
-    n = 1
-    v = t
-    while v != s:
-        v = parent[v]
-        n += 1
-    out = np.empty(n, dtype=np.int64)
-    v = t
-    for i in range(n - 1, -1, -1):
-        out[i] = v
-        v = parent[v]
-    return out
+    return trace_back(parent, s, t)
 
 
 @dataclass
