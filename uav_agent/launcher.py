@@ -21,7 +21,7 @@ from pathlib import Path
 from protocol.errors import MissionError
 from protocol.keys import new_fleet_name
 
-from .children import die_with_parent
+from protocol.process import die_with_parent
 
 GRACE_S = 3.0
 

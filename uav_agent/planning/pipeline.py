@@ -191,7 +191,7 @@ def warm_up(planner: str = DEFAULT_PLANNER, connectivity: int = 4) -> float:
     while this one compiles the prioritized planner: numba holds the GIL while it
     compiles, so only a process uses the second core (about 45 s -> 28 s here).
     """
-    from ..children import die_with_parent
+    from protocol.process import die_with_parent
     from .lacam import warm_up as warm_up_fast_planners
 
     t = time.perf_counter()

@@ -1,4 +1,4 @@
-"""Child processes that must not outlive the process that started them."""
+"""How every process of the system lives and dies: children that die with their parent."""
 from __future__ import annotations
 
 import ctypes
