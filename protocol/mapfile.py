@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 
 from .errors import MapError
+from .grid import Cell, on_grid
 
 FREE_CHARS = frozenset(".G")
-Cell = tuple[int, int]
 
 
 def parse_rows(rows: list[str], name: str = "map") -> np.ndarray:
@@ -114,7 +114,7 @@ def read_scen(path: str | Path, free: np.ndarray | None = None, agents: int | No
         a = ScenAgent((sx, sy), (gx, gy), length)
         if free is not None:
             for what, (x, y) in (("start", a.start), ("goal", a.goal)):
-                if not (0 <= x < free.shape[1] and 0 <= y < free.shape[0]) or not free[y, x]:
+                if not on_grid(x, y, free.shape[1], free.shape[0]) or not free[y, x]:
                     raise MapError(f"{path}: line {n}: {what} ({x}, {y}) is not a free cell of the map")
         out.append(a)
         if agents is not None and len(out) == agents:

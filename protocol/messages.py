@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, TypeVar, get_args, get_origin
 
 from .errors import ProtocolError
+from .grid import Cell
 
 PROTOCOL_VERSION = 1
-Cell = tuple[int, int]
 
 
 @dataclass(frozen=True)

@@ -7,23 +7,23 @@ pitfall 3). Work runs on one worker thread, never inside a Zenoh callback. On a
 tick a lone robot sends one MoveRequest; a pool sends all its robots' moves in
 one MoveBatch, so a pool of 500 robots costs one query per tick, not 500.
 
-    python -m robot_agents.agent --ids 0-3 --fleet F --connect tcp/127.0.0.1:7447
+    python -m robot_agents --ids 0-3 --fleet F --connect tcp/127.0.0.1:7447
 """
 from __future__ import annotations
 
 import argparse
 import queue
-import signal
 import sys
 import threading
 from typing import Any, Callable, Sequence
 
-from protocol.config import DEFAULT_ENDPOINT, client_config, config_from_file
+from protocol.config import add_session_arguments, session_config
 from protocol.errors import ProtocolError, UavRobotsError
 from protocol.keys import Keys, robot_id_from_key
-from protocol.messages import (MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Plan, Tick,
-                               decode, encode)
-from protocol.transport import Handle, Transport, ZenohTransport
+from protocol.messages import (MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Plan, Tick, decode,
+                               encode)
+from protocol.process import Lifecycle
+from protocol.transport import Transport, ZenohTransport
 
 from .robot import RobotMachine, Step
 
@@ -66,11 +66,12 @@ def parse_ids(text: str) -> list[int]:
     return sorted(ids)
 
 
-class RobotPool:
+class RobotPool(Lifecycle):
     """The robots hosted by one process, wired to a transport."""
 
     def __init__(self, ids: Sequence[int], transport: Transport, fleet: str, connectivity: int = 4,
                  move_timeout_s: float = MOVE_TIMEOUT_S, stop: threading.Event | None = None) -> None:
+        super().__init__(stop)
         if not ids:
             raise UavRobotsError("a robot pool needs at least one robot id")
         if connectivity not in (4, 8):
@@ -79,12 +80,9 @@ class RobotPool:
         self.transport = transport
         self.machines = {int(r): RobotMachine(int(r), connectivity) for r in ids}
         self.move_timeout_s = move_timeout_s
-        self.stop = stop or threading.Event()
-        self.exit_reason = ""
         self._seq = {r: 0 for r in self.machines}
         self._batch_seq = 0
         self._work: queue.Queue[tuple[str, Any] | None] = queue.Queue()
-        self._handles: list[Handle] = []
         self._uav_seen = False
         self._worker = threading.Thread(target=self._loop, name="robot-pool", daemon=True)
         self.label = format_ids(list(self.machines))
@@ -94,17 +92,17 @@ class RobotPool:
         k = self.keys
         if len(self.machines) == 1:
             (r,) = self.machines
-            self._handles.append(self.transport.subscribe(k.plan(r), self._queue_plan(r)))
+            self.keep(self.transport.subscribe(k.plan(r), self._queue_plan(r)))
         else:
             # One wildcard subscription, not one per robot: Zenoh's Python binding runs a thread per callback.
-            self._handles.append(self.transport.subscribe(f"{k.prefix}/robot/*/plan", self._on_any_plan))
-        self._handles.append(self.transport.subscribe(k.tick, lambda _k, p: self._work.put(("tick", p))))
-        self._handles.append(self.transport.subscribe(k.mission_end, self._on_end))
-        self._handles.append(self.transport.watch_alive(k.alive_uav, self._on_uav))
+            self.keep(self.transport.subscribe(f"{k.prefix}/robot/*/plan", self._on_any_plan))
+        self.keep(self.transport.subscribe(k.tick, lambda _k, p: self._work.put(("tick", p))),
+                  self.transport.subscribe(k.mission_end, self._on_end),
+                  self.transport.watch_alive(k.alive_uav, self._on_uav))
         self._worker.start()
         # Last: the tokens tell the UAV that everything above is listening.
         for r in self.machines:
-            self._handles.append(self.transport.announce(k.alive_robot(r)))
+            self.keep(self.transport.announce(k.alive_robot(r)))
 
     def _queue_plan(self, robot: int) -> Callable[[str, bytes], None]:
         return lambda _key, payload: self._work.put(("plan", (robot, payload)))
@@ -120,27 +118,20 @@ class RobotPool:
         except ProtocolError as exc:
             _warn(f"robots {self.label}: ignored mission end: {exc}")
             return
-        self._finish("mission ended" + (" (completed)" if end.completed else f": {end.reason or 'aborted'}"))
+        self.finish("mission ended" + (" (completed)" if end.completed else f": {end.reason or 'aborted'}"))
 
     def _on_uav(self, _key: str, alive: bool) -> None:
         if alive:
             self._uav_seen = True
         elif self._uav_seen:
-            self._finish("the UAV went away: mission aborted")
-
-    def _finish(self, reason: str) -> None:
-        if not self.stop.is_set():
-            self.exit_reason = reason
-            self.stop.set()
+            self.finish("the UAV went away: mission aborted")
 
     def close(self) -> None:
         self.stop.set()
         self._work.put(None)
         if self._worker.is_alive() and threading.current_thread() is not self._worker:
             self._worker.join(JOIN_TIMEOUT_S)
-        for h in reversed(self._handles):
-            h.close()
-        self._handles.clear()
+        self.release()
 
     # ------------------------------------------------------------ worker
     def _loop(self) -> None:
@@ -253,8 +244,7 @@ def run_robots(ids: Sequence[int], transport: Transport, fleet: str, connectivit
         pool.start()
         if on_ready is not None:
             on_ready(pool)
-        while not pool.stop.wait(0.5):
-            pass
+        pool.serve()
     finally:
         pool.close()
     return 0
@@ -274,9 +264,7 @@ def add_robot_arguments(p: argparse.ArgumentParser) -> None:
                    help="a robot id to host (repeat for several)")
     p.add_argument("--ids", default=None, metavar="RANGES", help="robot ids as ranges, e.g. 0-49 or 0-3,7")
     p.add_argument("--fleet", required=True, help="fleet name: keys live under uavr/<fleet>")
-    p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
-                   help=f"Zenoh router to join (default {DEFAULT_ENDPOINT})")
-    p.add_argument("--zenoh-config", default=None, metavar="FILE", help="a Zenoh JSON5 config file instead")
+    add_session_arguments(p)
     p.add_argument("--connectivity", type=int, choices=(4, 8), default=4)
     p.add_argument("--move-timeout", type=float, default=MOVE_TIMEOUT_S, metavar="S",
                    help="how long to wait for the world's answer to a move")
@@ -289,10 +277,10 @@ def robot_command(args: argparse.Namespace) -> int:
     if any(i < 0 for i in ids):
         raise UavRobotsError("robot ids must be non-negative")
     Keys(args.fleet)  # a bad fleet name fails before the session opens
-    conf = config_from_file(args.zenoh_config) if args.zenoh_config else client_config(
-        args.connect or [DEFAULT_ENDPOINT])
-    stop = threading.Event()
-    _install_signals(stop)
+    conf = session_config(args.listen, args.connect, args.zenoh_config)
+    life = Lifecycle()   # signals stop the pool even while the session is still opening
+    life.stop_on_signals()
+    stop = life.stop
     with ZenohTransport(conf, f"robots {format_ids(ids)}") as transport:
         def ready(pool: RobotPool) -> None:
             noun = "robot" if len(ids) == 1 else "robots"
@@ -305,9 +293,3 @@ def robot_command(args: argparse.Namespace) -> int:
     print(f"robots {format_ids(ids)}: {reason}", flush=True)
     return code
 
-
-def _install_signals(stop: threading.Event) -> None:
-    if threading.current_thread() is not threading.main_thread():
-        return
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())

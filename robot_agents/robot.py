@@ -14,9 +14,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from protocol.errors import ProtocolError
+from protocol.grid import Cell
 from protocol.messages import Done, MoveResult, Plan, PlanAck, RobotState, Tick
 
-Cell = tuple[int, int]
 IDLE, READY, STEPPING, DONE, ERROR = "idle", "ready", "stepping", "done", "error"
 
 

@@ -24,9 +24,8 @@ import cv2
 import numpy as np
 
 from protocol.errors import MapError, MissionError
+from protocol.grid import Cell, on_grid
 from protocol.messages import CameraFrame
-
-Cell = tuple[int, int]
 
 # BGR colours. The floor is bright and colourless, shelves dark and brown, goals
 # saturated green, the world outside the grid dark blue: each is separable by
@@ -113,10 +112,10 @@ class Scene:
         for rid, (x, y) in self.robots.items():
             if not 0 <= rid < MARKER_IDS:
                 raise MapError(f"scene: robot id {rid} has no marker (DICT_4X4_1000 holds ids 0..{MARKER_IDS - 1})")
-            if not (0 <= x < w and 0 <= y < h):
+            if not on_grid(x, y, w, h):
                 raise MapError(f"scene: robot {rid} at {(x, y)} is off the {w}x{h} grid")
         for x, y in self.goals:
-            if not (0 <= x < w and 0 <= y < h):
+            if not on_grid(x, y, w, h):
                 raise MapError(f"scene: goal {(x, y)} is off the {w}x{h} grid")
 
 

@@ -14,9 +14,8 @@ from typing import Any, Mapping
 import numpy as np
 
 from protocol.errors import UavRobotsError
+from protocol.grid import Cell, on_grid
 from protocol.messages import MoveResult
-
-Cell = tuple[int, int]
 
 
 @dataclass(frozen=True)
@@ -62,12 +61,12 @@ class MoveJudge:
     # ----------------------------------------------------------- geometry
     def _on_free(self, c: Cell) -> bool:
         h, w = self.free.shape
-        return 0 <= c[0] < w and 0 <= c[1] < h and bool(self.free[c[1], c[0]])
+        return on_grid(c[0], c[1], w, h) and bool(self.free[c[1], c[0]])
 
     def _step_problem(self, frm: Cell, to: Cell) -> str:
         """Why one robot alone could not make this step ('' if it could)."""
         h, w = self.free.shape
-        if not (0 <= to[0] < w and 0 <= to[1] < h):
+        if not on_grid(to[0], to[1], w, h):
             return f"{to} is off the {w}x{h} grid"
         if not self.free[to[1], to[0]]:
             return f"{to} is an obstacle"

@@ -6,13 +6,12 @@ markers and the multicopter. It serves, under `uavr/<fleet>/world/`:
 pose), `move` (one tick's moves, judged together) and `record` (what happened,
 for scoring). It announces `alive/world` once all of them are declared.
 
-    python -m uav_agent.cli world --fleet F --connect tcp/127.0.0.1:7447 --robots 8
+    python -m sim_world --fleet F --connect tcp/127.0.0.1:7447 --robots 8
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import signal
 import sys
 import threading
 import time
@@ -22,21 +21,22 @@ from typing import Any, Callable
 
 import numpy as np
 
-from protocol.config import DEFAULT_ENDPOINT, client_config, config_from_file, hub_config
+from protocol.config import add_session_arguments, describe_session, session_config
 from protocol.errors import ProtocolError, UavRobotsError
 from protocol.keys import Keys
+from protocol.log import Throttled
 from protocol.mapfile import Cell, format_rows, read_scen
 from protocol.messages import (CameraRequest, MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Record,
                                RecordRequest, WorldInfo, WorldInfoRequest, decode, encode)
-from protocol.transport import Handle, IncomingQuery, Transport, ZenohTransport
+from protocol.process import Lifecycle
+from protocol.transport import IncomingQuery, Transport, ZenohTransport
+from scenarios.maps import place, resolve_map
 
-from .maps import place, resolve_map
 from .moves import MoveJudge
 
 # PX4 SITL's default home: a field near Zurich. The grid's top-left corner is there.
 HOME = (47.397742, 8.545594, 488.0)
 MOVE_BATCH_TIMEOUT_S = 2.0
-WARN_INTERVAL_S = 1.0
 
 
 @dataclass
@@ -92,21 +92,6 @@ def build_truth(cfg: WorldConfig) -> Truth:
         placement = place(free, cfg.robots, cfg.seed)
         starts, goals = placement.starts, placement.goals
     return Truth(name, free, {i: c for i, c in enumerate(starts)}, list(goals))
-
-
-class _Throttle:
-    """At most one warning line per interval, so a flood of garbage cannot flood the log."""
-
-    def __init__(self) -> None:
-        self._last = 0.0
-        self.count = 0
-
-    def __call__(self, text: str) -> None:
-        self.count += 1
-        now = time.monotonic()
-        if now - self._last >= WARN_INTERVAL_S:
-            self._last = now
-            print(f"warning: world: {text}", file=sys.stderr, flush=True)
 
 
 Reply = Callable[[MoveResult], None]
@@ -212,8 +197,9 @@ def _send(sends: list[tuple[Reply, MoveResult]]) -> None:
             print(f"warning: world: a move reply failed: {exc}", file=sys.stderr, flush=True)
 
 
-class World:
+class World(Lifecycle):
     def __init__(self, cfg: WorldConfig, transport: Transport | None = None) -> None:
+        super().__init__()
         cfg.check()
         self.cfg = cfg
         self.keys = Keys(cfg.fleet)
@@ -224,13 +210,10 @@ class World:
         self._own_transport = transport is None
         self.vehicle: Any = None
         self.camera_model: Any = None
-        self.warn = _Throttle()
-        self.stop = threading.Event()
-        self.exit_reason = ""
+        self.warn = Throttled("world")
         self.mission_ended: float | None = None
         self.uav_seen = False
         self.uav_alive = False
-        self._handles: list[Handle] = []
         self._camera_pool = ThreadPoolExecutor(1, thread_name_prefix="camera")
         self._t0 = time.monotonic()
         self._seq = 0
@@ -254,46 +237,34 @@ class World:
             self.transport = ZenohTransport(self._zenoh_config(), "world")
         self.desk = MoveDesk(self.judge, cfg.move_batch_timeout_s)
         t, k = self.transport, self.keys
-        self._handles += [
+        self.keep(
             t.serve(k.world_info, self._on_info),
             t.serve(k.camera, self._on_camera),
             t.serve(k.move, self._on_move),
             t.serve(k.record, self._on_record),
             t.subscribe(k.mission_end, self._on_mission_end),
             t.watch_alive(k.alive_uav, self._on_uav),
-        ]
-        self._handles.append(t.announce(k.alive_world))
+        )
+        self.keep(t.announce(k.alive_world))
 
     def _zenoh_config(self) -> str:
-        cfg = self.cfg
-        if cfg.zenoh_config:
-            return config_from_file(cfg.zenoh_config)
-        if cfg.listen:
-            return hub_config(cfg.listen)
-        return client_config(cfg.connect or [DEFAULT_ENDPOINT])
+        return session_config(self.cfg.listen, self.cfg.connect, self.cfg.zenoh_config)
 
     def run(self, poll_s: float = 0.1) -> str:
         """Serve until stopped; returns why it stopped."""
-        while not self.stop.wait(poll_s):
-            if self.mission_ended is not None:
-                waited = time.monotonic() - self.mission_ended
-                # Stay while the UAV may still fetch the record and land the vehicle.
-                if not self.uav_alive and (self.uav_seen or waited > 1.0):
-                    self._finish("mission ended")
-                elif waited > self.cfg.end_timeout_s:
-                    self._finish(f"mission ended; the UAV stayed {self.cfg.end_timeout_s:g} s longer")
-        return self.exit_reason
+        return self.serve(poll_s, self._check_end)
 
-    def _finish(self, reason: str) -> None:
-        if not self.stop.is_set():
-            self.exit_reason = reason
-            self.stop.set()
+    def _check_end(self) -> None:
+        if self.mission_ended is not None:
+            waited = time.monotonic() - self.mission_ended
+            # Stay while the UAV may still fetch the record and land the vehicle.
+            if not self.uav_alive and (self.uav_seen or waited > 1.0):
+                self.finish("mission ended")
+            elif waited > self.cfg.end_timeout_s:
+                self.finish(f"mission ended; the UAV stayed {self.cfg.end_timeout_s:g} s longer")
 
     def close(self) -> None:
-        self.stop.set()
-        for h in reversed(self._handles):
-            h.close()
-        self._handles.clear()
+        self.release()
         if self.desk is not None:
             self.desk.close()
         self._camera_pool.shutdown(wait=True, cancel_futures=True)
@@ -315,8 +286,7 @@ class World:
 
     def describe(self) -> str:
         h, w = self.truth.free.shape
-        where = (self.cfg.zenoh_config or (f"listening on {','.join(self.cfg.listen)}" if self.cfg.listen
-                 else f"connected to {','.join(self.cfg.connect or [DEFAULT_ENDPOINT])}"))
+        where = describe_session(self.cfg.listen, self.cfg.connect, self.cfg.zenoh_config)
         return (f"fleet {self.cfg.fleet}, map {self.truth.name} {w}x{h}, {len(self.truth.starts)} robots, "
                 f"zenoh {where}, mavlink {self.cfg.mavlink or 'off'}")
 
@@ -471,7 +441,7 @@ class World:
         if alive:
             self.uav_seen = True
         elif self.mission_ended is None and self.uav_seen:
-            self._finish("the UAV went away: mission aborted")
+            self.finish("the UAV went away: mission aborted")
 
 
 # ------------------------------------------------------------------ CLI
@@ -511,12 +481,7 @@ def add_world_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the placement of robots and goals")
     p.add_argument("--scen", default=None, metavar="FILE", help="take starts and goals from a MovingAI .scen")
     p.add_argument("--fleet", required=True, help="fleet name: keys live under uavr/<fleet>")
-    where = p.add_mutually_exclusive_group()
-    where.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
-                       help=f"Zenoh router to join (default {DEFAULT_ENDPOINT})")
-    where.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
-                       help="be the Zenoh router yourself, listening here")
-    p.add_argument("--zenoh-config", default=None, metavar="FILE", help="a Zenoh JSON5 config file instead")
+    add_session_arguments(p)
     p.add_argument("--mavlink", default="udpout:127.0.0.1:14540", metavar="URL",
                    help="the vehicle's MAVLink link (pymavlink URL); 'none' runs without a vehicle")
     p.add_argument("--time-scale", type=float, default=1.0, metavar="X", help="simulated seconds per second")
@@ -552,9 +517,7 @@ def config_from_args(args: argparse.Namespace) -> WorldConfig:
 def world_command(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
     world = World(cfg)
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            signal.signal(sig, lambda *_: world._finish("signal"))
+    world.stop_on_signals()
     try:
         world.start()
         print(f"world ready: {world.describe()}", flush=True)

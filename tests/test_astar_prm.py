@@ -11,7 +11,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from protocol.errors import PlanningError
-from sim_world.maps import NAMED, place, random_map, warehouse
+from scenarios.maps import NAMED, place, random_map, warehouse
 from uav_agent.planning.astar import astar
 from uav_agent.planning.paper import paper_astar, paper_prm
 from uav_agent.planning.priority_waits import IncompleteError

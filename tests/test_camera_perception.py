@@ -25,7 +25,7 @@ from sim_world.camera import (
     floor_homography,
     render,
 )
-from sim_world.maps import place, random_map, resolve_map, warehouse
+from scenarios.maps import place, random_map, resolve_map, warehouse
 from uav_agent.perception import Frame, decode_frame, homography, perceive
 from uav_agent.survey import survey_poses
 

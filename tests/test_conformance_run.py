@@ -10,7 +10,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def _suite(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "pytest", "protocol/conformance/test_robot_conformance.py", "-q", "-p", "no:cacheprovider",
+    return subprocess.run([sys.executable, "-m", "pytest", "conformance/test_robot_conformance.py", "-q", "-p", "no:cacheprovider",
                            *args], cwd=REPO, capture_output=True, text=True, timeout=timeout)
 
 
@@ -21,7 +21,7 @@ def test_our_robot_conforms():
 
 
 def test_our_robot_conforms_with_an_explicit_command_and_id():
-    cmd = f"{shlex.quote(sys.executable)} -m uav_agent.cli robot --ids {{id}} --fleet {{fleet}} --connect {{endpoint}}"
+    cmd = f"{shlex.quote(sys.executable)} -m robot_agents --ids {{id}} --fleet {{fleet}} --connect {{endpoint}}"
     run = _suite("--robot-cmd", cmd, "--robot-id", "42", "-k", "follow_the_plan")
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
     assert "1 passed" in run.stdout

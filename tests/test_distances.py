@@ -9,7 +9,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import shortest_path
 
 from protocol.errors import PlanningError
-from sim_world.maps import random_map
+from scenarios.maps import random_map
 from uav_agent.planning import distances as D
 from uav_agent.planning.types import Problem
 

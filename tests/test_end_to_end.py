@@ -13,7 +13,7 @@ from protocol.mapfile import parse_rows
 from uav_agent.planning.types import Problem
 from uav_agent.planning.validator import validate
 
-CLI = [sys.executable, "-m", "uav_agent.cli"]
+CLI = [sys.executable, "-m", "uav_robots"]
 
 
 def _run(args, timeout):

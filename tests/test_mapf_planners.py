@@ -18,7 +18,8 @@ from hypothesis import strategies as st
 
 from protocol.errors import MapError, PlanningError
 from protocol.mapfile import read_map, read_scen
-from sim_world.maps import place, random_map
+from scenarios.benchmarks import movingai_map, movingai_scen, paper_scen, paper_warehouse
+from scenarios.maps import place, random_map
 from uav_agent.planning.distances import compile_problem
 from uav_agent.planning.lacam import lacam, refine, search, trimmed, warm_up
 from uav_agent.planning.pibt import history_to_paths, pibt
@@ -26,9 +27,7 @@ from uav_agent.planning.prioritized import guide_paths, prioritized, split_paths
 from uav_agent.planning.types import Limits, Problem, sum_of_costs
 from uav_agent.planning.validator import check
 
-BENCH = Path("/work/shared/benchmarks")
-W450 = BENCH / "paper-warehouse-450"
-W10 = BENCH / "movingai" / "warehouse-10-20-10-2-1"
+W10 = "warehouse-10-20-10-2-1"
 PLANNERS = {"prioritized": prioritized, "pibt": pibt, "lacam": lacam}
 
 
@@ -211,15 +210,14 @@ def test_eight_connected_crowd(name):
         assert any(abs(a[0] - b[0]) == 1 and abs(a[1] - b[1]) == 1 for p in paths for a, b in itertools.pairwise(p))
 
 
-def _scen_problem(map_path: Path, scen_path: Path, n: int) -> Problem:
-    free = read_map(map_path)
+def _scen_problem(free: np.ndarray, scen_path: Path, n: int) -> Problem:
     agents = read_scen(scen_path, free, n)
     return Problem(free, [a.start for a in agents], [a.goal for a in agents])
 
 
 @pytest.mark.parametrize("name", list(PLANNERS))
 def test_paper_warehouse_50_robots(name):
-    problem = _scen_problem(W450 / "warehouse-450.map", W450 / "warehouse-450-random-1.scen", 50)
+    problem = _scen_problem(paper_warehouse(), paper_scen(1), 50)
     paths = solve_or_none(PLANNERS[name], problem, 30.0)
     if name != "pibt":
         assert paths is not None
@@ -229,7 +227,7 @@ def test_paper_warehouse_50_robots(name):
 
 
 def test_movingai_warehouse_100_robots():
-    problem = _scen_problem(W10 / "warehouse-10-20-10-2-1.map", W10 / "warehouse-10-20-10-2-1-random-1.scen", 100)
+    problem = _scen_problem(read_map(movingai_map(W10)), movingai_scen(W10, "random-1"), 100)
     paths = solve_or_none(lacam, problem, 30.0)
     assert paths is not None
     assert sum_of_costs(paths, problem.goals) <= 1.1 * compile_problem(problem).lower_bound()
@@ -238,7 +236,7 @@ def test_movingai_warehouse_100_robots():
 
 
 def test_lacam_search_alone_solves_a_dense_warehouse():
-    problem = _scen_problem(W10 / "warehouse-10-20-10-2-1.map", W10 / "warehouse-10-20-10-2-1-random-2.scen", 300)
+    problem = _scen_problem(read_map(movingai_map(W10)), movingai_scen(W10, "random-2"), 300)
     inst = compile_problem(problem)
     hist = search(inst, Limits(30))
     assert (hist[0] == inst.starts).all() and (hist[-1] == inst.goals).all()
@@ -246,7 +244,7 @@ def test_lacam_search_alone_solves_a_dense_warehouse():
 
 
 def test_refinement_keeps_plans_valid_and_lowers_the_sum_of_costs():
-    problem = _scen_problem(W10 / "warehouse-10-20-10-2-1.map", W10 / "warehouse-10-20-10-2-1-random-1.scen", 150)
+    problem = _scen_problem(read_map(movingai_map(W10)), movingai_scen(W10, "random-1"), 150)
     inst = compile_problem(problem)
     buf, poff, plen = trimmed(inst, search(inst, Limits(30)))
     before = int((plen - 1).sum())
@@ -268,7 +266,7 @@ def test_search_memory_bound_is_a_one_line_error():
 
 
 def test_lacam_with_partial_guides_stays_valid():
-    problem = _scen_problem(W10 / "warehouse-10-20-10-2-1.map", W10 / "warehouse-10-20-10-2-1-random-3.scen", 250)
+    problem = _scen_problem(read_map(movingai_map(W10)), movingai_scen(W10, "random-3"), 250)
     inst = compile_problem(problem)
     buf, poff, plen, complete = guide_paths(inst, Limits(30), 300)   # a tight cap leaves robots unrouted
     assert not complete and (plen == 0).any() and (plen > 0).any()

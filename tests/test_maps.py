@@ -1,15 +1,13 @@
-"""MovingAI files, generators, placement."""
-from pathlib import Path
-
+"""MovingAI files, generators, placement, the shipped benchmark data."""
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from protocol.errors import MapError
 from protocol.mapfile import ScenAgent, read_map, read_scen, write_map, write_scen
-from sim_world.maps import largest_component, place, random_map, resolve_map, warehouse
-
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "benchmarks"
+from scenarios.benchmarks import DATA, grid_hash, movingai_map, movingai_scen, paper_scen, paper_warehouse
+from scenarios.maps import largest_component, place, random_map, resolve_map, warehouse
 
 
 def test_map_round_trip(tmp_path):
@@ -22,13 +20,27 @@ def test_map_round_trip(tmp_path):
     assert read_scen(tmp_path / "m.scen", free) == agents
 
 
-@pytest.mark.skipif(not SHARED.exists(), reason="shared benchmarks not beside the repo")
 def test_warehouse_450_is_the_papers_benchmark_map():
-    shared = read_map(SHARED / "paper-warehouse-450" / "warehouse-450.map")
-    assert (warehouse(33, 112) == shared).all()
-    assert shared.sum() == 126_784
-    agents = read_scen(SHARED / "paper-warehouse-450" / "warehouse-450-random-1.scen", shared, agents=50)
+    free = paper_warehouse()   # regenerated and checked against the published map's hash
+    assert (warehouse(33, 112) == free).all()
+    assert free.sum() == 126_784
+    agents = read_scen(paper_scen(1), free, agents=50)
     assert len(agents) == 50
+    changed = free.copy()
+    changed[1, 1] = not changed[1, 1]
+    assert grid_hash(changed) != grid_hash(free)
+
+
+def test_every_shipped_benchmark_loads():
+    for m in sorted(p.name for p in (DATA / "movingai").iterdir() if p.is_dir()):
+        free = read_map(movingai_map(m))
+        for s in ("random-1", "even-5"):
+            assert len(read_scen(movingai_scen(m, s), free, 10)) == 10
+
+
+def test_a_missing_benchmark_file_is_one_line_naming_it():
+    with pytest.raises(MapError, match=r"benchmark file not found: .*10000agents-1.scen \(it is not shipped"):
+        movingai_scen("warehouse-20-40-10-2-2", "10000agents-1")
 
 
 @pytest.mark.parametrize("text, needle", [

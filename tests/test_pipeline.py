@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from protocol.errors import MapError, PlanningError
-from sim_world.maps import NAMED, place, warehouse
-from uav_agent.planning.pipeline import ASSIGN_MODES, PlanResult, plan_mission
+from scenarios.maps import NAMED, place, warehouse
+from uav_agent.planning.assignment import ASSIGNERS
+from uav_agent.planning.pipeline import PlanResult, plan_mission
 from uav_agent.planning.plan_io import FORMAT, plan_from_dict, plan_to_dict, read_plan, write_plan
 from uav_agent.planning.registry import DEFAULT_PLANNER, PLANNERS, get_planner, is_complete
 from uav_agent.planning.types import Problem, makespan, sum_of_costs
@@ -86,7 +87,7 @@ def test_registry_names_and_default():
 
 
 @pytest.mark.parametrize("planner", sorted(PLANNERS))
-@pytest.mark.parametrize("assign", ASSIGN_MODES)
+@pytest.mark.parametrize("assign", list(ASSIGNERS))
 def test_every_planner_and_assignment(small, planner, assign):
     free, starts, goals = small
     r = plan_mission(free, starts, goals, planner=planner, assign=assign, time_limit=30.0)
@@ -113,7 +114,7 @@ def test_every_planner_and_assignment(small, planner, assign):
 
 @pytest.mark.parametrize("seed", range(4))
 def test_optimal_assignment_matches_brute_force_on_tiny_random_maps(seed):
-    from sim_world.maps import random_map
+    from scenarios.maps import random_map
     free = random_map(9, 7, 0.2, seed)
     pl = place(free, 5, seed)
     r = plan_mission(free, pl.starts, pl.goals, assign="optimal")
@@ -148,7 +149,7 @@ def test_default_planner_never_falls_back():
     assert r.metrics["sum_of_costs"] > r.metrics["lower_bound"]  # one robot had to step aside
 
 
-@pytest.mark.parametrize("assign", ASSIGN_MODES)
+@pytest.mark.parametrize("assign", list(ASSIGNERS))
 def test_unreachable_goal_is_a_planning_error(assign):
     free = np.ones((4, 7), dtype=bool)
     free[:, 3] = False   # a wall: two rooms

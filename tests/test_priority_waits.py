@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from protocol.errors import PlanningError
-from sim_world.maps import place, random_map
+from scenarios.maps import place, random_map
 from uav_agent.planning.astar import astar
 from uav_agent.planning.priority_waits import IncompleteError, priority_waits
 from uav_agent.planning.types import Limits, Problem

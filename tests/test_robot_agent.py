@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from protocol.conformance import FakeUav, Hub, stop_process
+from conformance import FakeUav, Hub, stop_process
 from protocol.errors import UavRobotsError
 from protocol.keys import Keys
 from protocol.messages import MoveResult, Plan, Tick
@@ -182,7 +182,7 @@ def test_pool_process_over_zenoh_with_a_conflict(tmp_path):
         world = World(WorldConfig(fleet=hub.fleet, map=m, scen=s, robots=4, mavlink=None, connect=[hub.endpoint]))
         world.start()
         uav = FakeUav(hub.transport, hub.keys)
-        proc = subprocess.Popen([sys.executable, "-m", "uav_agent.cli", "robot", "--ids", "0-3", "--fleet", hub.fleet,
+        proc = subprocess.Popen([sys.executable, "-m", "robot_agents", "--ids", "0-3", "--fleet", hub.fleet,
                                  "--connect", hub.endpoint], cwd=REPO, stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True, start_new_session=True)
         try:
@@ -208,6 +208,6 @@ def test_pool_process_over_zenoh_with_a_conflict(tmp_path):
 
 def test_robot_cli_errors_are_one_line():
     for args in (["--fleet", "f"], ["--fleet", "f", "--ids", "x-y"], ["--fleet", "no good", "--id", "1"]):
-        run = subprocess.run([sys.executable, "-m", "uav_agent.cli", "robot", *args], cwd=REPO, capture_output=True,
+        run = subprocess.run([sys.executable, "-m", "robot_agents", *args], cwd=REPO, capture_output=True,
                              text=True, timeout=30)
         assert run.returncode == 2 and run.stderr.startswith("error:") and len(run.stderr.strip().splitlines()) == 1

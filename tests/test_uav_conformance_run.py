@@ -7,8 +7,8 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-SUITE = "protocol/conformance/test_uav_conformance.py"
-UAV_ARGS = "uav --fleet {fleet} --connect {endpoint} --mavlink udpin://127.0.0.1:{mavlink_port} " \
+SUITE = "conformance/test_uav_conformance.py"
+UAV_ARGS = "--fleet {fleet} --connect {endpoint} --mavlink udpin://127.0.0.1:{mavlink_port} " \
            "--robots {robots} --tick-timeout {tick_timeout}"
 
 
@@ -37,13 +37,14 @@ def test_a_uav_without_a_tick_barrier_fails_the_suite(tmp_path):
     hasty.write_text(
         "import sys\n"
         "from uav_agent.fleet import FleetLink\n"
-        "from uav_agent.cli import main\n"
+        "from protocol.process import command_main\n"
+        "from uav_agent.cli import build_parser\n"
         "wait = FleetLink.wait_until\n"
         "def no_barrier(self, ready, timeout, failure, abort=None):\n"
         "    if 'did not report tick' not in failure():\n"
         "        wait(self, ready, timeout, failure, abort)\n"
         "FleetLink.wait_until = no_barrier\n"
-        "sys.exit(main())\n")
+        "sys.exit(command_main(build_parser))\n")
     cmd = f"{shlex.quote(sys.executable)} {shlex.quote(str(hasty))} {UAV_ARGS}"
     run = _suite("--uav-cmd", cmd, "-k", "barrier_holds")
     assert run.returncode == 1, run.stdout[-3000:]

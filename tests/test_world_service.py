@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from protocol.config import client_config
-from protocol.conformance import FakeUav, Hub, free_endpoint, stop_process
+from conformance import FakeUav, Hub, free_endpoint, stop_process
 from protocol.keys import Keys
 from protocol.messages import (CameraFrame, CameraRequest, MissionEnd, MoveRequest, MoveResult, Record, RecordRequest,
                                WorldInfo, WorldInfoRequest, decode, encode)
@@ -151,17 +151,17 @@ def test_camera_renders_the_current_positions(mem_world):
 
 
 def test_bad_config_is_one_line_error(tmp_path):
-    run = subprocess.run([sys.executable, "-m", "uav_agent.cli", "world", "--fleet", "f", "--map", "nosuch.map",
+    run = subprocess.run([sys.executable, "-m", "sim_world", "--fleet", "f", "--map", "nosuch.map",
                           "--mavlink", "none"], cwd=REPO, capture_output=True, text=True, timeout=30)
     assert run.returncode == 2 and run.stderr.strip().startswith("error:") and len(run.stderr.strip().splitlines()) == 1
-    run = subprocess.run([sys.executable, "-m", "uav_agent.cli", "world", "--fleet", "bad fleet!", "--mavlink", "none"],
+    run = subprocess.run([sys.executable, "-m", "sim_world", "--fleet", "bad fleet!", "--mavlink", "none"],
                          cwd=REPO, capture_output=True, text=True, timeout=30)
     assert run.returncode == 2 and "fleet name" in run.stderr
 
 
 # ------------------------------------------------------------------ over Zenoh
 def start_world(hub: Hub, *extra: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "uav_agent.cli", "world", "--fleet", hub.fleet, "--connect", hub.endpoint,
+    return subprocess.Popen([sys.executable, "-m", "sim_world", "--fleet", hub.fleet, "--connect", hub.endpoint,
                              "--robots", "3", *extra], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, start_new_session=True)
 

@@ -5,13 +5,13 @@ robot cannot speak for another); the mission thread waits on the condition.
 """
 from __future__ import annotations
 
-import sys
 import threading
 import time
 from typing import Callable
 
 from protocol.errors import MissionError, ProtocolError
 from protocol.keys import Keys, robot_id_from_key
+from protocol.log import Throttled
 from protocol.messages import Done, PlanAck, RobotState, decode
 from protocol.transport import Transport
 
@@ -28,8 +28,7 @@ class FleetLink:
         self.cells: dict[int, tuple[int, int]] = {}
         self.errors: dict[int, str] = {}
         self.done: dict[int, Done] = {}
-        self.rejected = 0
-        self._warned = 0.0
+        self._warn = Throttled("uav")
         self._handles = [
             transport.subscribe(keys.all_acks, self._on_ack),
             transport.subscribe(keys.all_states, self._on_state),
@@ -38,13 +37,12 @@ class FleetLink:
             transport.watch_alive(keys.alive_world, self._on_world_alive),
         ]
 
+    @property
+    def rejected(self) -> int:
+        return self._warn.count
+
     def _reject(self, key: str, why: str) -> None:
-        with self.cv:
-            self.rejected += 1
-        now = time.monotonic()
-        if now - self._warned > 1.0:
-            self._warned = now
-            print(f"warning: ignored message on {key}: {why}", file=sys.stderr, flush=True)
+        self._warn(f"ignored message on {key}: {why}")
 
     def _decode(self, key: str, payload: bytes, cls):
         rid = robot_id_from_key(key)

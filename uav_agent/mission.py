@@ -16,11 +16,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from protocol.config import client_config, config_from_file, hub_config
+from protocol.config import DEFAULT_ENDPOINT, session_config
 from protocol.errors import MissionError, ProtocolError
 from protocol.keys import Keys
-from protocol.messages import (CameraFrame, CameraRequest, MissionEnd, MissionStatus, Plan, Record,
-                               RecordRequest, Tick, WorldInfo, WorldInfoRequest, decode, encode)
+from protocol.messages import (CameraFrame, CameraRequest, MissionEnd, MissionStatus, Plan, Record, RecordRequest, Tick,
+                               WorldInfo, WorldInfoRequest, decode, encode)
 from protocol.transport import Transport, ZenohTransport
 
 from .fleet import FleetLink
@@ -65,13 +65,9 @@ class _Clock:
 
 
 def _transport(cfg: MissionConfig) -> Transport:
-    if cfg.zenoh_config:
-        conf = config_from_file(cfg.zenoh_config)
-    elif cfg.connect:
-        conf = client_config(cfg.connect)
-    else:
-        conf = hub_config(cfg.listen or ["tcp/127.0.0.1:7447"])
-    return ZenohTransport(conf, "uav")
+    # The UAV is the hub unless told to join a router.
+    hub = cfg.listen or ([] if cfg.connect or cfg.zenoh_config else [DEFAULT_ENDPOINT])
+    return ZenohTransport(session_config(hub, cfg.connect, cfg.zenoh_config), "uav")
 
 
 def _query(transport: Transport, key: str, request: Any, reply_type: type, what: str) -> Any:

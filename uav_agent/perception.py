@@ -31,9 +31,8 @@ import cv2
 import numpy as np
 
 from protocol.errors import MissionError, ProtocolError
+from protocol.grid import Cell, on_grid
 from protocol.messages import CameraFrame
-
-Cell = tuple[int, int]
 
 ARUCO_DICTIONARY = cv2.aruco.DICT_4X4_1000
 _DICTIONARY = cv2.aruco.getPredefinedDictionary(ARUCO_DICTIONARY)
@@ -149,7 +148,7 @@ def _sighting(view: _View, quad: np.ndarray, rid: int, grid: tuple[int, int], wa
     if not (0.6 * MARKER_SIZE_CELLS < side < 1.4 * MARKER_SIZE_CELLS) or offset > 0.25:
         warnings.append(f"ignored marker {rid} at {cell}: {side:.2f} cell wide, {offset:.2f} cell off centre")
         return None
-    if not (0 <= cell[0] < grid[0] and 0 <= cell[1] < grid[1]):
+    if not on_grid(*cell, *grid):
         warnings.append(f"ignored marker {rid} seen off the grid at {cell}")
         return None
     img_h, img_w = view.gray.shape
@@ -256,7 +255,7 @@ def _goals_in(view: _View, grid: tuple[int, int]) -> set[Cell]:
             continue
         u, v = _to_floor(centroids[i], view.H_inv)[0]
         cell = (math.floor(u), math.floor(v))
-        if 0 <= cell[0] < grid[0] and 0 <= cell[1] < grid[1]:
+        if on_grid(*cell, *grid):
             goals.add(cell)
     return goals
 

@@ -6,7 +6,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-Cell = tuple[int, int]
+from protocol.grid import Cell
 
 FLOOR, SHELF = (235, 235, 235), (60, 60, 60)
 

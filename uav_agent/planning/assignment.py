@@ -7,7 +7,9 @@ never fewer.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from itertools import chain, permutations
+from typing import Callable
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -117,3 +119,49 @@ def assign_bottleneck(cost) -> list[int]:
         else:
             lo = mid + 1
     return assign_optimal(np.where(c <= levels[lo], c, np.inf))
+
+
+# --------------------------------------------------------------------------- the modes
+def _keep(cost: np.ndarray, starts: list[Cell], goals: list[Cell]) -> list[int]:
+    for i in range(len(starts)):
+        if not np.isfinite(cost[i, i]):
+            raise PlanningError(f"robot {i} at {starts[i]} cannot reach its goal {goals[i]}")
+    return list(range(len(starts)))
+
+
+def _paper(cost: np.ndarray, starts: list[Cell], goals: list[Cell]) -> list[int]:
+    # The paper ranks combinations by straight-line distance; a pair with no path at all
+    # must still never be chosen.
+    euclid = np.asarray(euclidean_costs(starts, goals), dtype=float).copy()
+    euclid[~np.isfinite(cost)] = np.inf
+    return assign_bruteforce(euclid)
+
+
+@dataclass(frozen=True)
+class Assigner:
+    help: str
+    assign: Callable[[np.ndarray, list[Cell], list[Cell]], list[int]]   # (true costs, starts, goals)
+
+
+# The one list of assignment modes: the CLI's choices and help, the pipeline and the bench read it.
+ASSIGNERS: dict[str, Assigner] = {
+    "optimal": Assigner("minimum total shortest-path distance (scipy's linear_sum_assignment)",
+                        lambda cost, s, g: assign_optimal(cost)),
+    "bottleneck": Assigner("minimum longest path first, then minimum total",
+                           lambda cost, s, g: assign_bottleneck(cost)),
+    "bruteforce": Assigner("the paper's search over all permutations on Euclidean distance (at most 9 robots)",
+                           _paper),
+    "none": Assigner("robot i keeps goal i", _keep),
+}
+DEFAULT_ASSIGNMENT = "optimal"
+
+
+def check_mode(mode: str) -> str:
+    if mode not in ASSIGNERS:
+        raise PlanningError(f"unknown assignment {mode!r}: choose one of {', '.join(ASSIGNERS)}")
+    return mode
+
+
+def assign(mode: str, cost: np.ndarray, starts: list[Cell], goals: list[Cell]) -> list[int]:
+    """Robot i's goal index under `mode`; `cost` holds true shortest-path distances (inf: unreachable)."""
+    return [int(j) for j in ASSIGNERS[check_mode(mode)].assign(cost, starts, goals)]

@@ -19,6 +19,7 @@ import numpy as np
 from numba import njit
 
 from protocol.errors import PlanningError
+from protocol.grid import on_grid
 
 from .types import Cell, Limits
 
@@ -109,7 +110,7 @@ def check_cell(free: np.ndarray, cell, what: str) -> tuple[int, int]:
     except (TypeError, ValueError, IndexError):
         raise PlanningError(f"{what} {cell!r} is not an (x, y) cell") from None
     h, w = free.shape
-    if not (0 <= x < w and 0 <= y < h):
+    if not on_grid(x, y, w, h):
         raise PlanningError(f"{what} ({x}, {y}) is off the {w}x{h} grid")
     if not free[y, x]:
         raise PlanningError(f"{what} ({x}, {y}) is an obstacle")

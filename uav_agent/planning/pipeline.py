@@ -9,20 +9,20 @@ import os
 import subprocess
 import sys
 import time
-from pathlib import Path as FsPath
 from dataclasses import dataclass, field
+from pathlib import Path as FsPath
 
 import numpy as np
 
 from protocol.errors import PlanningError
+from protocol.grid import on_grid
 
-from . import assignment as assign_mod
+from .assignment import DEFAULT_ASSIGNMENT, check_mode
+from .assignment import assign as assign_goals
 from .distances import cost_matrix
 from .registry import DEFAULT_PLANNER, check_name, get_planner, is_complete
 from .types import Cell, Limits, Path, Problem, makespan, sum_of_costs
 from .validator import check
-
-ASSIGN_MODES = ("optimal", "bottleneck", "bruteforce", "none")
 
 
 @dataclass
@@ -50,7 +50,7 @@ def _check_cells(free: np.ndarray, cells: list[Cell], what: str) -> list[Cell]:
             x, y = (int(v) for v in c)
         except (TypeError, ValueError):
             raise PlanningError(f"{what} {i} is {c!r}, not an (x, y) cell") from None
-        if not (0 <= x < w and 0 <= y < h):
+        if not on_grid(x, y, w, h):
             raise PlanningError(f"{what} {i} ({x}, {y}) is off the {w}x{h} grid")
         if not free[y, x]:
             raise PlanningError(f"{what} {i} ({x}, {y}) is on an obstacle")
@@ -64,8 +64,7 @@ def _check_cells(free: np.ndarray, cells: list[Cell], what: str) -> list[Cell]:
 def _check_input(free, starts, goals, planner, assign, connectivity, time_limit):
     if not isinstance(free, np.ndarray) or free.ndim != 2 or free.size == 0:
         raise PlanningError("the grid must be a non-empty 2-D array free[y, x]")
-    if assign not in ASSIGN_MODES:
-        raise PlanningError(f"unknown assignment {assign!r}: choose one of {', '.join(ASSIGN_MODES)}")
+    check_mode(assign)
     if connectivity not in (4, 8):
         raise PlanningError(f"connectivity must be 4 or 8, got {connectivity!r}")
     if not time_limit > 0:
@@ -81,31 +80,13 @@ def _check_input(free, starts, goals, planner, assign, connectivity, time_limit)
     return free, starts, goals
 
 
-def _assign(mode: str, cost: np.ndarray, starts: list[Cell], goals: list[Cell]) -> list[int]:
-    n = len(starts)
-    if mode == "none":
-        for i in range(n):
-            if not np.isfinite(cost[i, i]):
-                raise PlanningError(f"robot {i} at {starts[i]} cannot reach its goal {goals[i]}")
-        return list(range(n))
-    if mode == "bruteforce":
-        # The paper ranks combinations by straight-line distance; a pair with no path at
-        # all must still never be chosen.
-        euclid = np.asarray(assign_mod.euclidean_costs(starts, goals), dtype=float).copy()
-        euclid[~np.isfinite(cost)] = np.inf
-        return [int(j) for j in assign_mod.assign_bruteforce(euclid)]
-    if mode == "bottleneck":
-        return [int(j) for j in assign_mod.assign_bottleneck(cost)]
-    return [int(j) for j in assign_mod.assign_optimal(cost)]
-
-
 def _run(name: str, problem: Problem, limits: Limits) -> list[Path]:
     paths = get_planner(name)(problem, limits)
     return [[(int(x), int(y)) for x, y in p] for p in paths]
 
 
 def plan_mission(free: np.ndarray, starts: list[Cell], goals: list[Cell], *,
-                 planner: str = DEFAULT_PLANNER, assign: str = "optimal", connectivity: int = 4,
+                 planner: str = DEFAULT_PLANNER, assign: str = DEFAULT_ASSIGNMENT, connectivity: int = 4,
                  time_limit: float = 60.0, fallback: bool = True, seed: int = 0) -> PlanResult:
     """Assign goals to robots and plan collision-free paths, within `time_limit` seconds in all.
 
@@ -127,7 +108,7 @@ def plan_mission(free: np.ndarray, starts: list[Cell], goals: list[Cell], *,
     limits.check("distances")
 
     t = time.perf_counter()
-    order = _assign(assign, cost, starts, goals)
+    order = assign_goals(assign, cost, starts, goals)
     timings["assignment"] = time.perf_counter() - t
     assigned = [goals[j] for j in order]
     lower_bound = float(cost[np.arange(n), order].sum())
@@ -192,6 +173,7 @@ def warm_up(planner: str = DEFAULT_PLANNER, connectivity: int = 4) -> float:
     compiles, so only a process uses the second core (about 45 s -> 28 s here).
     """
     from protocol.process import die_with_parent
+
     from .lacam import warm_up as warm_up_fast_planners
 
     t = time.perf_counter()

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from protocol.errors import PlanningError
+from protocol.grid import on_grid
 from protocol.mapfile import format_rows, parse_rows
 
 from .types import Cell, Path, Problem, sum_of_costs
@@ -113,7 +114,7 @@ def _cell(value: Any, where: str, w: int, h: int) -> Cell:
             or not all(isinstance(v, int) and not isinstance(v, bool) for v in value)):
         raise PlanningError(f"{where} is {json.dumps(value)[:40]}, not [x, y] integers")
     x, y = value
-    if not (0 <= x < w and 0 <= y < h):
+    if not on_grid(x, y, w, h):
         raise PlanningError(f"{where} ({x}, {y}) is off the {w}x{h} map")
     return (x, y)
 

@@ -17,8 +17,8 @@ from typing import Callable
 import numpy as np
 
 from protocol.errors import PlanningError
+from protocol.grid import Cell
 
-Cell = tuple[int, int]
 Path = list[Cell]
 
 

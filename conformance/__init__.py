@@ -1,0 +1,268 @@
+"""A harness that plays hub, UAV and world around a robot implementation under test.
+
+The conformance suite (`test_robot_conformance.py` beside this file) uses it
+to check any robot that speaks the protocol, started from a command line; our
+own tests use it to drive the real world and robots. Everything here talks
+only through `protocol` (Zenoh on loopback), never through robot internals.
+"""
+from __future__ import annotations
+
+import os
+import shlex
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from protocol.config import hub_config
+from protocol.errors import MissionError, ProtocolError
+from protocol.keys import Keys, new_fleet_name, robot_id_from_key
+from protocol.messages import (Done, MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Plan, PlanAck,
+                               RobotState, Tick, decode, encode)
+from protocol.transport import Handle, IncomingQuery, Transport, ZenohTransport
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_ROBOT_CMD = f"{shlex.quote(sys.executable)} -m robot_agents --id {{id}} --fleet {{fleet}} --connect {{endpoint}}"
+
+
+def free_endpoint() -> str:
+    """A loopback TCP endpoint on a port the kernel just had free (bind port 0, then release)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+class Hub:
+    """A Zenoh router session on a free loopback port, for one fleet."""
+
+    def __init__(self, fleet: str | None = None, attempts: int = 5) -> None:
+        self.fleet = fleet or new_fleet_name()
+        self.keys = Keys(self.fleet)
+        last: Exception | None = None
+        for _ in range(attempts):
+            self.endpoint = free_endpoint()
+            try:
+                self.transport: Transport = ZenohTransport(hub_config([self.endpoint]), "conformance hub")
+                return
+            except MissionError as exc:  # the port was taken between probe and bind: try another
+                last = exc
+        raise MissionError(f"no free port for a Zenoh router after {attempts} attempts: {last}")
+
+    def close(self) -> None:
+        self.transport.close()
+
+    def __enter__(self) -> "Hub":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class Waiter:
+    """A condition variable with `until(predicate, timeout)`, shared by the fakes."""
+
+    def __init__(self) -> None:
+        self.cv = threading.Condition()
+
+    def changed(self) -> None:
+        with self.cv:
+            self.cv.notify_all()
+
+    def until(self, pred: Callable[[], bool], timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        with self.cv:
+            while not pred():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self.cv.wait(min(left, 0.2))
+            return True
+
+
+@dataclass
+class FakeUav(Waiter):
+    """Sends plans, ticks and the mission end; records every robot's acks, states and done flags."""
+    transport: Transport
+    keys: Keys
+    announce: bool = True
+    alive: set[int] = field(default_factory=set)
+    acks: dict[int, list[PlanAck]] = field(default_factory=dict)
+    states: dict[int, list[RobotState]] = field(default_factory=dict)
+    dones: dict[int, list[Done]] = field(default_factory=dict)
+    garbage: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        Waiter.__init__(self)
+        self.seq = 0
+        t, k = self.transport, self.keys
+        self._handles: list[Handle] = [
+            t.subscribe(k.all_acks, self._collect(PlanAck, self.acks)),
+            t.subscribe(k.all_states, self._collect(RobotState, self.states)),
+            t.subscribe(k.all_done, self._collect(Done, self.dones)),
+            t.watch_alive(k.alive_robots, self._on_alive),
+        ]
+        self._token = t.announce(k.alive_uav) if self.announce else None
+
+    def _collect(self, cls: type, into: dict[int, list[Any]]) -> Callable[[str, bytes], None]:
+        def cb(key: str, payload: bytes) -> None:
+            try:
+                msg = decode(payload, cls)
+            except ProtocolError as exc:
+                self.garbage.append(f"{key}: {exc}")
+                self.changed()
+                return
+            rid = robot_id_from_key(key)
+            if msg.robot != rid:
+                self.garbage.append(f"{key}: message for robot {msg.robot}")
+            with self.cv:
+                into.setdefault(rid, []).append(msg)
+                self.cv.notify_all()
+        return cb
+
+    def _on_alive(self, key: str, alive: bool) -> None:
+        rid = robot_id_from_key(key)
+        with self.cv:
+            if rid is not None:
+                (self.alive.add if alive else self.alive.discard)(rid)
+            self.cv.notify_all()
+
+    def _next(self) -> int:
+        self.seq += 1
+        return self.seq
+
+    def plan(self, robot: int, plan_id: str, path: list[tuple[int, int]], goal: tuple[int, int] | None = None,
+             for_robot: int | None = None) -> None:
+        msg = Plan(robot=robot if for_robot is None else for_robot, plan_id=plan_id, path=list(path),
+                   goal=goal if goal is not None else path[-1], seq=self._next())
+        self.transport.put(self.keys.plan(robot), encode(msg))
+
+    def tick(self, k: int, ticks: int, plan_id: str) -> None:
+        self.transport.put(self.keys.tick, encode(Tick(k=k, ticks=ticks, plan_id=plan_id, seq=self._next())))
+
+    def end(self, completed: bool = True, reason: str = "") -> None:
+        self.transport.put(self.keys.mission_end, encode(MissionEnd(completed=completed, reason=reason,
+                                                                    seq=self._next())))
+
+    def leave(self) -> None:
+        """Withdraw the UAV's liveliness token, as a crashed UAV would."""
+        if self._token is not None:
+            self._token.close()
+            self._token = None
+
+    def ack_for(self, robot: int, plan_id: str, timeout: float) -> PlanAck | None:
+        def found() -> bool:
+            return any(a.plan_id == plan_id for a in self.acks.get(robot, []))
+        if not self.until(found, timeout):
+            return None
+        return next(a for a in self.acks[robot] if a.plan_id == plan_id)
+
+    def state_at(self, robot: int, k: int, timeout: float) -> RobotState | None:
+        def found() -> bool:
+            return any(s.tick == k for s in self.states.get(robot, []))
+        if not self.until(found, timeout):
+            return None
+        return next(s for s in self.states[robot] if s.tick == k)
+
+    def close(self) -> None:
+        self.leave()
+        for h in self._handles:
+            h.close()
+
+
+@dataclass
+class FakeWorld(Waiter):
+    """A move service that accepts every request unless told to refuse (robot, tick) pairs.
+
+    It trusts a robot's first `frm` as its position, and then keeps its own
+    idea of where the robot is, which it reports in every answer.
+    """
+    transport: Transport
+    keys: Keys
+    refuse: set[tuple[int, int]] = field(default_factory=set)
+    requests: list[MoveRequest] = field(default_factory=list)
+    positions: dict[int, tuple[int, int]] = field(default_factory=dict)
+    answer: bool = True
+
+    def __post_init__(self) -> None:
+        Waiter.__init__(self)
+        self._handle = self.transport.serve(self.keys.move, self._on_move)
+        self._token = self.transport.announce(self.keys.alive_world)
+
+    def _on_move(self, q: IncomingQuery) -> None:
+        if b'"MoveBatch"' in q.payload[:200]:
+            batch = decode(q.payload, MoveBatch)
+            results = [self._judge(MoveRequest(robot=r, tick=batch.tick, frm=a, to=b)) for r, a, b in batch.moves]
+            reply = encode(MoveBatchResult(tick=batch.tick, results=[
+                (res.robot, res.accepted, res.cell, res.reason) for res in results]))
+        else:
+            reply = encode(self._judge(decode(q.payload, MoveRequest)))
+        if self.answer:
+            q.reply(reply)
+        else:
+            q.finish()
+
+    def _judge(self, req: MoveRequest) -> MoveResult:
+        with self.cv:
+            self.requests.append(req)
+            here = self.positions.setdefault(req.robot, tuple(req.frm))
+            ok = (req.robot, req.tick) not in self.refuse
+            if ok:
+                self.positions[req.robot] = tuple(req.to)
+            self.cv.notify_all()
+            return MoveResult(robot=req.robot, tick=req.tick, accepted=ok, cell=self.positions[req.robot],
+                              reason="" if ok else f"refused by the conformance world (robot stays at {here})")
+
+    def requests_for(self, robot: int, tick: int) -> list[MoveRequest]:
+        with self.cv:
+            return [r for r in self.requests if r.robot == robot and r.tick == tick]
+
+    def close(self) -> None:
+        self._token.close()
+        self._handle.close()
+
+
+def robot_command(template: str, robot: int, fleet: str, endpoint: str) -> list[str]:
+    try:
+        text = template.format(id=robot, fleet=fleet, endpoint=endpoint)
+    except (KeyError, IndexError, ValueError) as exc:
+        raise MissionError(f"--robot-cmd {template!r}: bad placeholder {exc}; use {{id}} {{fleet}} {{endpoint}}") from None
+    return shlex.split(text)
+
+
+def start_robot(template: str, robot: int, fleet: str, endpoint: str, log: Path | None = None) -> subprocess.Popen:
+    argv = robot_command(template, robot, fleet, endpoint)
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH", "")]))
+    out = open(log, "wb") if log is not None else subprocess.DEVNULL
+    try:
+        # A new session: the robot and any children it starts can be killed as one group.
+        return subprocess.Popen(argv, cwd=REPO, env=env, stdin=subprocess.DEVNULL, stdout=out,
+                                stderr=subprocess.STDOUT, start_new_session=True)
+    finally:
+        if log is not None:
+            out.close()
+
+
+def stop_process(proc: subprocess.Popen, grace: float = 3.0) -> int | None:
+    """SIGTERM the process group, then SIGKILL it; returns the exit code (None if it had to be killed)."""
+    if proc.poll() is None:
+        signal_group(proc, signal.SIGTERM)
+        try:
+            proc.wait(grace)
+        except subprocess.TimeoutExpired:
+            signal_group(proc, signal.SIGKILL)
+            proc.wait(5)
+            return None
+    return proc.returncode
+
+
+def signal_group(proc: subprocess.Popen, sig: int) -> None:
+    try:
+        os.killpg(proc.pid, sig)
+    except (ProcessLookupError, PermissionError):
+        pass

@@ -1,0 +1,114 @@
+"""Options and fixtures of the robot and UAV conformance suites.
+
+    python -m pytest conformance/test_robot_conformance.py \
+        --robot-cmd "my-robot --id {id} --fleet {fleet} --router {endpoint}"
+    python -m pytest conformance/test_uav_conformance.py \
+        --uav-cmd "my-uav --fleet {fleet} --router {endpoint} --mavlink {mavlink} --robots {robots}"
+"""
+from __future__ import annotations
+
+import pytest
+
+from conformance import DEFAULT_ROBOT_CMD, FakeUav, FakeWorld, Hub, start_robot, stop_process
+from conformance.uav_harness import DEFAULT_UAV_CMD, PLACEHOLDERS, UavOptions, uav_command
+from protocol.errors import MissionError
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    group = parser.getgroup("uav-robots conformance")
+    group.addoption("--robot-cmd", default=DEFAULT_ROBOT_CMD,
+                    help="command line of the robot under test; placeholders {id} {fleet} {endpoint}")
+    group.addoption("--robot-id", type=int, default=7, help="the robot id to start it with")
+    group.addoption("--robot-timeout", type=float, default=10.0,
+                    help="seconds a robot gets to come alive (and to answer anything)")
+    d = UavOptions()
+    group.addoption("--uav-cmd", default=DEFAULT_UAV_CMD,
+                    help=f"command line of the UAV under test; placeholders {PLACEHOLDERS} "
+                         "({mavlink} is udpin://127.0.0.1:{mavlink_port}, where the simulated vehicle sends)")
+    group.addoption("--uav-map", default=d.map, help=f"the world's map for UAV missions (default {d.map})")
+    group.addoption("--uav-robots", type=int, default=d.robots, help=f"robots in UAV missions (default {d.robots})")
+    group.addoption("--uav-seed", type=int, default=d.seed, help="seed of the world's placement")
+    group.addoption("--uav-time-scale", type=float, default=d.time_scale,
+                    help=f"simulated seconds per second of the MAVLink vehicle (default {d.time_scale:g})")
+    group.addoption("--uav-tick-timeout", type=float, default=d.tick_timeout_s,
+                    help="the UAV's tick barrier timeout, passed as {tick_timeout}; the UAV must end a mission "
+                         "with a silent robot within this plus 10 s (default %(default)s)")
+    group.addoption("--uav-timeout", type=float, default=d.mission_timeout_s,
+                    help="seconds a whole UAV mission may take before the UAV is killed (default %(default)s)")
+
+
+@pytest.fixture
+def robot_cmd(request: pytest.FixtureRequest) -> str:
+    return request.config.getoption("--robot-cmd")
+
+
+@pytest.fixture
+def rid(request: pytest.FixtureRequest) -> int:
+    return request.config.getoption("--robot-id")
+
+
+@pytest.fixture
+def timeout(request: pytest.FixtureRequest) -> float:
+    return request.config.getoption("--robot-timeout")
+
+
+@pytest.fixture
+def hub():
+    with Hub() as h:
+        yield h
+
+
+@pytest.fixture
+def uav(hub):
+    u = FakeUav(hub.transport, hub.keys)
+    yield u
+    u.close()
+
+
+@pytest.fixture
+def world(hub):
+    w = FakeWorld(hub.transport, hub.keys)
+    yield w
+    w.close()
+
+
+@pytest.fixture
+def spawn(hub, robot_cmd, rid, tmp_path):
+    """Start the robot under test; always stopped (and killed if need be) afterwards."""
+    procs = []
+
+    def start():
+        proc = start_robot(robot_cmd, rid, hub.fleet, hub.endpoint, tmp_path / f"robot-{len(procs)}.log")
+        procs.append(proc)
+        return proc
+
+    yield start
+    for p in procs:
+        stop_process(p)
+
+
+@pytest.fixture
+def robot(spawn, uav, world, rid, timeout, tmp_path):
+    """A running robot whose liveliness token has been seen."""
+    proc = spawn()
+    if not uav.until(lambda: rid in uav.alive or proc.poll() is not None, timeout):
+        pytest.fail(f"robot {rid} declared no liveliness token within {timeout:g} s; log:\n{_log(tmp_path)}")
+    if proc.poll() is not None:
+        pytest.fail(f"robot {rid} exited with code {proc.returncode} at startup; log:\n{_log(tmp_path)}")
+    return proc
+
+
+def _log(tmp_path) -> str:
+    return "\n".join(p.read_text(errors="replace")[-2000:] for p in sorted(tmp_path.glob("robot-*.log")))
+
+
+@pytest.fixture(scope="session")
+def uav_options(request: pytest.FixtureRequest) -> UavOptions:
+    o = request.config.getoption
+    try:  # a bad placeholder is a usage error: one line, and nothing is started
+        uav_command(o("--uav-cmd"), fleet="f", endpoint="tcp/127.0.0.1:1", mavlink_port=1, robots=1, tick_timeout=1)
+    except MissionError as exc:
+        pytest.exit(f"error: {exc}", returncode=4)
+    return UavOptions(cmd=o("--uav-cmd"), map=o("--uav-map"), robots=o("--uav-robots"), seed=o("--uav-seed"),
+                      time_scale=o("--uav-time-scale"), tick_timeout_s=o("--uav-tick-timeout"),
+                      mission_timeout_s=o("--uav-timeout"))

@@ -1,0 +1,174 @@
+"""Robot conformance: does a robot implementation keep the uav-robots protocol?
+
+The suite is hub, UAV and world at once (a Zenoh router on a free loopback
+port, a fake UAV, a fake move service) and starts the robot under test from
+`--robot-cmd`. See docs/protocol.md, "Conformance".
+"""
+from __future__ import annotations
+
+import signal
+import time
+
+from conformance import signal_group
+from protocol.messages import Plan, Tick, encode
+
+EXIT_S = 5.0
+QUIET_S = 0.5  # how long "nothing more arrives" is watched for
+
+
+def _path_at(path, k):
+    return tuple(path[min(k, len(path) - 1)])
+
+
+def _run_ticks(uav, world, rid, plan_id, path, ticks, timeout):
+    """Ticks 1..ticks in lockstep, as the UAV's barrier does; returns the states."""
+    states = []
+    for k in range(1, ticks + 1):
+        uav.tick(k, ticks, plan_id)
+        st = uav.state_at(rid, k, timeout)
+        assert st is not None, f"no RobotState for tick {k} within {timeout:g} s"
+        states.append(st)
+    return states
+
+
+def _accepted(uav, rid, plan_id, path, timeout):
+    uav.plan(rid, plan_id, path)
+    ack = uav.ack_for(rid, plan_id, timeout)
+    assert ack is not None, f"no PlanAck for plan {plan_id} within {timeout:g} s"
+    assert ack.ok, f"a valid plan was refused: {ack.error}"
+    return ack
+
+
+def test_liveliness_token_appears(spawn, uav, rid, timeout):
+    proc = spawn()
+    assert uav.until(lambda: rid in uav.alive, timeout), f"no liveliness token within {timeout:g} s"
+    assert proc.poll() is None, f"the robot exited with code {proc.returncode}"
+
+
+def test_valid_plan_is_acknowledged(robot, uav, rid, timeout):
+    ack = _accepted(uav, rid, "p-valid", [(2, 2), (3, 2), (3, 3)], timeout)
+    assert ack.robot == rid and ack.plan_id == "p-valid" and ack.error == ""
+
+
+def test_malformed_plans_are_refused(robot, uav, rid, timeout):
+    bad = {
+        "p-jump": dict(path=[(2, 2), (4, 2)]),
+        "p-goal": dict(path=[(2, 2), (3, 2)], goal=(5, 5)),
+        "p-empty": dict(path=[], goal=(2, 2)),
+        "p-other": dict(path=[(2, 2), (3, 2)], for_robot=rid + 1),
+    }
+    for pid, kw in bad.items():
+        uav.plan(rid, pid, **kw)
+        ack = uav.ack_for(rid, pid, timeout)
+        assert ack is not None, f"no PlanAck for malformed plan {pid}"
+        assert not ack.ok and ack.error, f"malformed plan {pid} was accepted"
+        assert ack.robot == rid
+    _accepted(uav, rid, "p-good", [(2, 2), (3, 2)], timeout)
+    assert robot.poll() is None
+
+
+def test_ticks_follow_the_plan_and_done_is_raised_once(robot, uav, world, rid, timeout):
+    path = [(2, 2), (3, 2), (3, 2), (4, 2), (4, 3)]
+    _accepted(uav, rid, "p-run", path, timeout)
+    ticks = len(path) + 1  # two ticks past the plan's end: the robot stays on its goal
+    states = _run_ticks(uav, world, rid, "p-run", path, ticks, timeout)
+    for k, st in enumerate(states, 1):
+        reqs = world.requests_for(rid, k)
+        assert len(reqs) == 1, f"tick {k}: {len(reqs)} move requests, expected exactly one"
+        assert (tuple(reqs[0].frm), tuple(reqs[0].to)) == (_path_at(path, k - 1), _path_at(path, k)), \
+            f"tick {k}: asked {reqs[0].frm} -> {reqs[0].to}"
+        assert st.robot == rid and st.tick == k and tuple(st.cell) == _path_at(path, k)
+    assert uav.until(lambda: len(uav.dones.get(rid, [])) >= 1, timeout), "no Done at the goal"
+    time.sleep(QUIET_S)
+    dones = uav.dones[rid]
+    assert len(dones) == 1, f"Done raised {len(dones)} times"
+    assert tuple(dones[0].cell) == path[-1] and dones[0].tick == len(path) - 1
+    assert states[-1].status == "done"
+
+
+def test_refused_move_leaves_the_robot_in_place(robot, uav, world, rid, timeout):
+    path = [(2, 2), (3, 2), (4, 2), (4, 2)]
+    world.refuse.add((rid, 2))
+    _accepted(uav, rid, "p-refused", path, timeout)
+    states = _run_ticks(uav, world, rid, "p-refused", path, 2, timeout)
+    assert tuple(states[1].cell) == (3, 2), "after a refused move the robot must report where it really is"
+    time.sleep(QUIET_S)
+    assert not uav.dones.get(rid), "Done raised while not on the goal"
+    uav.tick(3, 3, "p-refused")
+    st3 = uav.state_at(rid, 3, timeout)
+    assert st3 is not None and tuple(st3.cell) == (4, 2)
+    (req3,) = world.requests_for(rid, 3)
+    assert tuple(req3.frm) == (3, 2) and tuple(req3.to) == (4, 2), "the next request must start from the real cell"
+    assert uav.until(lambda: len(uav.dones.get(rid, [])) == 1, timeout)
+
+
+def _wrong_version(msg) -> bytes:
+    return encode(msg).replace(b'"v":1', b'"v":99', 1)
+
+
+def test_garbage_and_wrong_versions_do_not_crash_it(robot, uav, world, rid, timeout):
+    k = uav.keys
+    junk = [b"", b"\x00\xff garbage", b"{}", b"[1,2,3]", b'{"type":"Plan","v":1}',
+            _wrong_version(Plan(robot=rid, plan_id="p-v99", path=[(1, 1)], goal=(1, 1)))]
+    for payload in junk:
+        uav.transport.put(k.plan(rid), payload)
+    for payload in junk[:4] + [_wrong_version(Tick(k=1, ticks=1, plan_id="p-v99")), encode(Plan(
+            robot=rid, plan_id="x", path=[(1, 1)], goal=(1, 1)))]:
+        uav.transport.put(k.tick, payload)
+    time.sleep(QUIET_S)
+    assert robot.poll() is None, "the robot died on garbage"
+    assert not world.requests, "garbage on the tick key made the robot move"
+    assert not any(a.plan_id == "p-v99" for a in uav.acks.get(rid, [])), "a wrong-version plan was acted on"
+    path = [(2, 2), (2, 3)]
+    _accepted(uav, rid, "p-after", path, timeout)
+    (st,) = _run_ticks(uav, world, rid, "p-after", path, 1, timeout)
+    assert tuple(st.cell) == (2, 3)
+
+
+def test_duplicate_and_late_ticks_are_ignored(robot, uav, world, rid, timeout):
+    path = [(2, 2), (3, 2), (4, 2)]
+    _accepted(uav, rid, "p-dup", path, timeout)
+    _run_ticks(uav, world, rid, "p-dup", path, 2, timeout)
+    uav.tick(2, 2, "p-dup")
+    uav.tick(1, 2, "p-dup")
+    time.sleep(QUIET_S)
+    assert len(world.requests_for(rid, 1)) == 1 and len(world.requests_for(rid, 2)) == 1
+    assert [s.tick for s in uav.states[rid]] == [1, 2]
+
+
+def _exits(proc, seconds):
+    try:
+        proc.wait(seconds)
+        return True
+    except Exception:  # noqa: BLE001 - TimeoutExpired
+        return False
+
+
+def test_exits_on_mission_end(robot, uav, rid, timeout):
+    _accepted(uav, rid, "p-end", [(2, 2)], timeout)
+    uav.end(True, "conformance")
+    assert _exits(robot, EXIT_S), f"still running {EXIT_S:g} s after MissionEnd"
+    assert robot.returncode == 0
+    assert uav.until(lambda: rid not in uav.alive, timeout), "liveliness token left behind"
+
+
+def test_exits_on_sigterm(robot, uav, rid, timeout):
+    robot.send_signal(signal.SIGTERM)
+    assert _exits(robot, EXIT_S), f"still running {EXIT_S:g} s after SIGTERM"
+    assert robot.returncode in (0, -signal.SIGTERM)
+
+
+def test_exits_when_the_uav_goes_away(robot, uav, rid):
+    uav.leave()
+    assert _exits(robot, EXIT_S), f"still running {EXIT_S:g} s after the UAV's liveliness token went away"
+
+
+def test_restart_gets_a_fresh_token(spawn, uav, rid, timeout):
+    """A robot that is killed and restarted comes back alive on the same id."""
+    first = spawn()
+    assert uav.until(lambda: rid in uav.alive, timeout)
+    signal_group(first, signal.SIGKILL)
+    first.wait(5)
+    assert uav.until(lambda: rid not in uav.alive, timeout), "the dead robot's token did not go away"
+    spawn()
+    assert uav.until(lambda: rid in uav.alive, timeout)

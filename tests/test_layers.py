@@ -1,0 +1,73 @@
+"""The floors hold (import-linter), and the repository names no path of any one machine."""
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGES = ("protocol", "scenarios", "sim_world", "robot_agents", "uav_agent", "conformance", "uav_robots")
+
+
+def _lint(root: Path) -> subprocess.CompletedProcess:
+    # import-linter finds the packages on sys.path: `root` first, so a copy is linted, not the install.
+    code = "import sys; from importlinter.cli import lint_imports_command; sys.exit(lint_imports_command())"
+    return subprocess.run([sys.executable, "-c", code, "--config", str(root / "pyproject.toml"), "--no-cache"],
+                          cwd=root, env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin"},
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_the_floors_hold():
+    run = _lint(REPO)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
+    assert "0 broken" in run.stdout
+
+
+@pytest.mark.parametrize("file, line, broken", [
+    ("protocol/keys.py", "import sim_world.world", "floors"),
+    ("sim_world/moves.py", "from uav_agent import fleet", "floors"),
+    ("robot_agents/robot.py", "import scenarios.maps", "a robot process imports nothing but the protocol"),
+    ("uav_agent/fleet.py", "import uav_robots.launcher", "floors"),
+])
+def test_a_backward_import_breaks_the_contract(tmp_path, file, line, broken):
+    for pkg in PACKAGES:
+        shutil.copytree(REPO / pkg, tmp_path / pkg, ignore=shutil.ignore_patterns("__pycache__", "data"))
+    shutil.copy(REPO / "pyproject.toml", tmp_path / "pyproject.toml")
+    target = tmp_path / file
+    target.write_text(target.read_text() + f"\n{line}\n")
+    run = _lint(tmp_path)
+    assert run.returncode == 1, run.stdout[-3000:] + run.stderr[-2000:]
+    assert re.search(re.escape(broken) + r".*BROKEN", run.stdout.replace("\n", " ")), run.stdout[-3000:]
+
+
+# A path that starts at the root of one machine's file system: its home, a workspace, a mount.
+MACHINE_PATH = re.compile(r"(?<![\w.~-])/(work|root|home|Users|mnt|srv|opt)/[\w.-]")
+
+
+def test_no_absolute_machine_path_in_the_repository():
+    files = subprocess.run(["git", "ls-files", "-co", "--exclude-standard"], cwd=REPO, capture_output=True,
+                           text=True, timeout=30).stdout.split()
+    if not files:
+        pytest.skip("not a git checkout")
+    hits = []
+    for name in files:
+        path = REPO / name
+        if not path.is_file() or path.suffix in (".png", ".gif", ".mp4", ".mcap"):
+            continue
+        for no, text in enumerate(path.read_text(errors="replace").splitlines(), 1):
+            if MACHINE_PATH.search(text):
+                hits.append(f"{name}:{no}: {text.strip()[:120]}")
+    assert not hits, "absolute machine paths:\n" + "\n".join(hits)
+
+
+def test_a_robot_process_loads_nothing_of_the_uav():
+    code = ("import sys, runpy; sys.argv = ['robot_agents', '--help']\n"
+            "try:\n    runpy.run_module('robot_agents', run_name='__main__')\nexcept SystemExit:\n    pass\n"
+            f"print(sorted({{m.split('.')[0] for m in sys.modules}} & set({PACKAGES!r})))")
+    run = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip().splitlines()[-1] == "['protocol', 'robot_agents']"

@@ -1,0 +1,1 @@
+"""The system command `uav-robots`: launches missions, plans and benchmarks alone, runs the conformance suites."""

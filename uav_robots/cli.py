@@ -1,0 +1,61 @@
+"""The `uav-robots` command: run a whole mission, or one part of it, plan and benchmark alone, check conformance."""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from protocol.process import command_main
+
+
+def _add_run(sub) -> None:
+    from uav_agent.cli import add_planning_arguments
+
+    p = sub.add_parser("run", help="run a complete mission: world, UAV and robot processes")
+    p.add_argument("--map", default="warehouse-small",
+                   help="a .map file, warehouse-small, warehouse-450, 'warehouse:blocks_x=..,blocks_y=..' "
+                        "or 'random:width=..,height=..,density=..' (default: warehouse-small)")
+    p.add_argument("--robots", type=int, default=8, help="number of robots (default 8)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the placement (and random maps)")
+    p.add_argument("--out", help="directory for report.json, overhead.png, paths.png, replay.gif, logs/")
+    add_planning_arguments(p)
+    p.add_argument("--time-scale", type=float, default=10.0,
+                   help="simulated seconds per wall second for the vehicle (default 10)")
+    p.add_argument("--camera", default="",
+                   help="camera options for the world, e.g. 'width=1280,height=960,hfov_deg=84,noise_std=6,"
+                        "blur_sigma=1,lighting=0.3' (default 4000x3000, 90 deg, clean)")
+    p.add_argument("--robots-per-process", type=int, default=None,
+                   help="robots hosted per process (default: 1 up to 64 robots, then 4 pools)")
+    p.add_argument("--timeout", type=float, default=900.0, help="give up after this many seconds")
+    p.set_defaults(func=lambda a: importlib.import_module("uav_robots.launcher").run(a))
+
+
+# Each subcommand is defined beside the code it runs and imported only when chosen:
+# a robot process must not pay for scipy and OpenCV it never uses.
+_SUBCOMMANDS = {
+    "run": (__name__, "_add_run"),
+    "uav": ("uav_agent.cli", "add_uav_parser"),
+    "world": ("sim_world.world", "add_world_parser"),
+    "robot": ("robot_agents.agent", "add_robot_parser"),
+    "plan": ("uav_robots.plan_cli", "add_plan_parser"),
+    "bench": ("uav_robots.plan_cli", "add_bench_parser"),
+    "conformance": ("uav_robots.conformance_cli", "add_conformance_parser"),
+}
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    chosen = argv[0] if argv and argv[0] in _SUBCOMMANDS else None
+    parser = argparse.ArgumentParser(prog="uav-robots", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name, (module, adder) in _SUBCOMMANDS.items():
+        if chosen in (None, name):
+            getattr(importlib.import_module(module), adder)(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    return command_main(build_parser, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

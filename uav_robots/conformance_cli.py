@@ -1,0 +1,34 @@
+"""`uav-robots conformance robot|uav --cmd "..."`: the conformance suites on any implementation, via pytest."""
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+
+SUITES = {"robot": ("test_robot_conformance.py", "--robot-cmd"), "uav": ("test_uav_conformance.py", "--uav-cmd")}
+
+
+def add_conformance_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "conformance", help="check a robot or UAV implementation against the protocol",
+        description="Run the conformance suite on an implementation started from a command line. Placeholders: "
+                    "robot {id} {fleet} {endpoint}; uav {fleet} {endpoint} {mavlink} {mavlink_port} {robots} "
+                    "{tick_timeout}. Without --cmd the project's own implementation is checked.")
+    p.add_argument("kind", choices=list(SUITES), help="which side of the protocol the implementation plays")
+    p.add_argument("--cmd", default=None, help="the implementation's command line, with placeholders")
+    p.add_argument("pytest_args", nargs=argparse.REMAINDER,
+                   help="anything after the options goes to pytest (e.g. -k liveliness, -x, --robot-timeout 5)")
+    p.set_defaults(func=conformance_command)
+    return p
+
+
+def conformance_command(args: argparse.Namespace) -> int:
+    import conformance
+
+    suite, option = SUITES[args.kind]
+    path = Path(conformance.__file__).resolve().parent / suite
+    argv = [sys.executable, "-m", "pytest", str(path), "-q", "-p", "no:cacheprovider",
+            *([option, args.cmd] if args.cmd else []), *args.pytest_args]
+    # pytest's own exit code: 0 all rules kept, 1 a rule broken, 2-4 usage problems.
+    return subprocess.run(argv, stdin=subprocess.DEVNULL).returncode

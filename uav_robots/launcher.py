@@ -1,0 +1,181 @@
+"""`uav-robots run`: start the world, the UAV and the robot processes on this machine, watch them, clean up.
+
+Every run gets its own free TCP port (Zenoh), free UDP port (MAVLink) and fleet
+prefix, so several runs and test sessions share one machine. Children die with
+the launcher (PR_SET_PDEATHSIG), and Ctrl-C or any failing part stops them all.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from protocol.errors import MissionError
+from protocol.keys import new_fleet_name
+from protocol.process import die_with_parent
+
+GRACE_S = 3.0
+
+
+def free_port(kind: int = socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@dataclass
+class Child:
+    name: str
+    proc: subprocess.Popen
+    log: Path | None
+
+    def tail(self, lines: int = 3) -> str:
+        if self.log is None or not self.log.exists():
+            return ""
+        text = self.log.read_text(errors="replace").strip().splitlines()
+        return " | ".join(text[-lines:])
+
+
+def robot_groups(n: int, per_process: int | None) -> list[list[int]]:
+    """One process per robot for small fleets; pools beyond (one process per robot stops scaling near 100)."""
+    if per_process is None:
+        per_process = 1 if n <= 64 else math.ceil(n / 4)
+    per_process = max(1, per_process)
+    return [list(range(i, min(n, i + per_process))) for i in range(0, n, per_process)]
+
+
+class Launcher:
+    def __init__(self, args) -> None:
+        self.args = args
+        self.children: list[Child] = []
+        self.fleet = new_fleet_name()
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.udp = free_port(socket.SOCK_DGRAM)
+        self._tmp = None
+        if args.out:
+            self.out = Path(args.out).resolve()
+        else:
+            self._tmp = tempfile.TemporaryDirectory(prefix="uav-robots-")
+            self.out = Path(self._tmp.name)
+        self.logs = self.out / "logs"
+        self.logs.mkdir(parents=True, exist_ok=True)
+
+    def _spawn(self, name: str, package: str, argv: list[str], to_log: bool) -> Child:
+        log = self.logs / f"{name}.log" if to_log else None
+        out = open(log, "wb") if log else None
+        proc = subprocess.Popen([sys.executable, "-m", package, *argv], stdout=out or None,
+                                stderr=subprocess.STDOUT if out else None, stdin=subprocess.DEVNULL,
+                                preexec_fn=die_with_parent)
+        if out:
+            out.close()
+        child = Child(name, proc, log)
+        self.children.append(child)
+        return child
+
+    def start(self) -> Child:
+        a = self.args
+        common = ["--fleet", self.fleet]
+        uav = self._spawn("uav", "uav_agent", [*common, "--listen", self.endpoint, "--robots", str(a.robots),
+                                  "--mavlink", f"udpin://127.0.0.1:{self.udp}", "--out", str(self.out),
+                                  *(["--assign", a.assign] if a.assign else []),
+                                  "--connectivity", str(a.connectivity),
+                                  "--time-limit", str(a.time_limit), "--seed", str(a.seed),
+                                  *(["--planner", a.planner] if a.planner else []),
+                                  *(["--no-fallback"] if a.no_fallback else [])], to_log=False)
+        self._spawn("world", "sim_world", [*common, "--connect", self.endpoint, "--map", a.map,
+                              "--robots", str(a.robots), "--seed", str(a.seed),
+                              "--connectivity", str(a.connectivity),
+                              "--mavlink", f"udpout:127.0.0.1:{self.udp}", "--time-scale", str(a.time_scale),
+                              *(["--camera", a.camera] if a.camera else [])],
+                    to_log=True)
+        for group in robot_groups(a.robots, a.robots_per_process):
+            ids = f"{group[0]}-{group[-1]}"
+            self._spawn(f"robots-{ids}", "robot_agents", [*common, "--connect", self.endpoint, "--ids", ids,
+                                          "--connectivity", str(a.connectivity)], to_log=True)
+        return uav
+
+    def watch(self, uav: Child, timeout_s: float) -> int:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            code = uav.proc.poll()
+            if code is not None:
+                return code
+            for c in self.children:
+                if c is not uav and c.proc.poll() not in (None, 0):
+                    raise MissionError(f"{c.name} process exited with code {c.proc.returncode}: {c.tail()}")
+            if time.monotonic() > deadline:
+                raise MissionError(f"mission did not finish within {timeout_s:g} s")
+            time.sleep(0.05)
+
+    def stop(self, graceful: bool) -> None:
+        """Let children finish on their own (they exit at mission end) if `graceful`, then TERM, then KILL."""
+        deadline = time.monotonic() + (GRACE_S if graceful else 0.0)
+        while time.monotonic() < deadline and any(c.proc.poll() is None for c in self.children):
+            time.sleep(0.05)
+        for c in self.children:
+            if c.proc.poll() is None:
+                c.proc.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + GRACE_S
+        while time.monotonic() < deadline and any(c.proc.poll() is None for c in self.children):
+            time.sleep(0.05)
+        for c in self.children:
+            if c.proc.poll() is None:
+                c.proc.kill()
+                c.proc.wait(timeout=5)
+
+    def pids(self) -> dict:
+        by = {c.name: c.proc.pid for c in self.children}
+        return {"uav": by.get("uav"), "world": by.get("world"),
+                "robots": [c.proc.pid for c in self.children if c.name.startswith("robots-")],
+                "launcher": os.getpid()}
+
+
+def run(args) -> int:
+    # Check the input before starting anything, so a bad map is one line, not three dead processes.
+    from scenarios.maps import place, resolve_map
+
+    name, free = resolve_map(args.map, args.seed)
+    place(free, args.robots, args.seed)
+    if args.planner:
+        from uav_agent.planning.registry import get_planner
+
+        get_planner(args.planner)
+    launcher = Launcher(args)
+    t0 = time.perf_counter()
+    code = 1
+    print(f"uav-robots: map {name} ({free.shape[1]}x{free.shape[0]}), {args.robots} robots, fleet {launcher.fleet}, "
+          f"zenoh {launcher.endpoint}, mavlink udp:{launcher.udp}", flush=True)
+    try:
+        uav = launcher.start()
+        code = launcher.watch(uav, args.timeout)
+    except KeyboardInterrupt:
+        print("interrupted: stopping every process", file=sys.stderr, flush=True)
+        code = 130
+    except MissionError as exc:
+        print(f"error: {exc}", file=sys.stderr, flush=True)
+        code = 1
+    finally:
+        launcher.stop(graceful=code == 0)
+    report_path = launcher.out / "report.json"
+    if code == 0 and report_path.exists():
+        report = json.loads(report_path.read_text())
+        report["processes"] = launcher.pids()
+        report["timings"]["wall_total"] = round(time.perf_counter() - t0, 3)
+        report_path.write_text(json.dumps(report, indent=1))
+        # The UAV printed the mission's summary; the launcher adds what only it knows.
+        print(f"  whole run: {report['timings']['wall_total']:.2f}s wall (process start-up and shut-down "
+              f"included), {len(report['processes']['robots'])} robot process(es)"
+              + ("" if args.out else "; outputs were temporary: keep them with --out DIR"), flush=True)
+        code = 0 if report["completed"] else 1
+    elif code not in (0, 130):
+        print(f"error: the mission failed (exit {code}); logs in {launcher.logs}", file=sys.stderr, flush=True)
+        code = 1
+    return code

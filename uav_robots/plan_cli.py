@@ -1,0 +1,190 @@
+"""`uav-robots plan` and `uav-robots bench`: planning alone, no processes, no drone.
+
+`uav_robots.cli` registers them with `add_plan_parser(sub)` / `add_bench_parser(sub)`.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from protocol.errors import UavRobotsError
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be positive")
+    return v
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be at least 1")
+    return v
+
+
+def _fail(exc: Exception) -> int:
+    sys.stderr.write(f"error: {exc}\n")
+    return 2
+
+
+# ---------------------------------------------------------------------------- plan
+
+def add_plan_parser(subparsers) -> argparse.ArgumentParser:
+    from uav_agent.planning.assignment import ASSIGNERS
+    from uav_agent.planning.registry import DEFAULT_PLANNER, PLANNERS
+    p = subparsers.add_parser(
+        "plan", help="assign goals and plan collision-free paths; write a plan file",
+        description="Plan alone (no processes, no drone): a map, robots and goals in, a validated "
+                    "plan file out. With --scen the scenario's start-goal pairs are kept unless --assign "
+                    "says otherwise; with --robots N --seed S robots and goals are placed at random and "
+                    "assigned (optimal by default).")
+    p.add_argument("--map", required=True, help="a MovingAI .map file or a map spec (warehouse-small, "
+                   "warehouse-450, warehouse:blocks_x=..,blocks_y=.., random:width=..,height=..,density=..)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--scen", help="a MovingAI .scen file: robots start and goal cells")
+    src.add_argument("--robots", type=_positive_int, help="place N robots and N goals at random (seeded)")
+    p.add_argument("--agents", type=_positive_int, help="with --scen: use the first N agents (default all)")
+    p.add_argument("--seed", type=int, default=0, help="placement, random map and planner seed (default 0)")
+    p.add_argument("--out", required=True, help="the plan file to write (JSON, uav-robots-plan/1)")
+    # Not argparse choices: an unknown name gets the same one-line error as any bad input.
+    p.add_argument("--planner", default=DEFAULT_PLANNER,
+                   help=f"{', '.join(PLANNERS)}; default {DEFAULT_PLANNER} (the fastest complete one)")
+    p.add_argument("--assign", choices=list(ASSIGNERS),
+                   help="goal assignment (default: none with --scen, optimal with --robots)")
+    p.add_argument("--connectivity", type=int, choices=(4, 8), default=4)
+    p.add_argument("--time-limit", type=_positive_float, default=60.0, help="seconds for the whole plan (default 60)")
+    p.add_argument("--no-fallback", action="store_true",
+                   help="fail instead of falling back to the default planner when an incomplete one fails")
+    p.set_defaults(func=cmd_plan)
+    return p
+
+
+def _load_instance(args):
+    from protocol.errors import MapError
+    from protocol.mapfile import read_scen
+    from scenarios.maps import place, resolve_map
+
+    name, free = resolve_map(args.map, args.seed)
+    if args.scen:
+        agents = read_scen(args.scen, free, args.agents)
+        if not agents:
+            raise MapError(f"{args.scen}: the scenario has no agents")
+        return name, free, [a.start for a in agents], [a.goal for a in agents], args.assign or "none"
+    if args.agents is not None:
+        raise MapError("--agents goes with --scen; with --robots the count is --robots")
+    pl = place(free, args.robots, args.seed)
+    return name, free, pl.starts, pl.goals, args.assign or "optimal"
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    try:
+        t0 = time.perf_counter()
+        name, free, starts, goals, assign = _load_instance(args)
+        t_load = time.perf_counter() - t0
+        # Imported after the input is checked: numba's start-up need not delay a one-line error.
+        from uav_agent.planning.pipeline import plan_mission
+        from uav_agent.planning.plan_io import write_plan
+
+        result = plan_mission(free, starts, goals, planner=args.planner, assign=assign,
+                              connectivity=args.connectivity, time_limit=args.time_limit,
+                              fallback=not args.no_fallback, seed=args.seed)
+        write_plan(args.out, result, free, map_name=name)
+    except UavRobotsError as exc:
+        return _fail(exc)
+    _print_plan(name, free.shape, result, t_load, args.out)
+    return 0
+
+
+def _print_plan(name, shape, result, t_load: float, out: str) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    m, t = result.metrics, result.timings
+    h, w = shape
+    table = Table(show_header=False)
+    table.add_column("")
+    table.add_column("", justify="right")
+    planner = result.planner + (f" (fell back from {result.requested})" if result.fell_back else "")
+    table.add_row("planner", planner)
+    table.add_row("assignment", result.assign)
+    table.add_row("sum of costs", str(m["sum_of_costs"]))
+    table.add_row("lower bound", str(m["lower_bound"]))
+    table.add_row("SoC / LB", f"{m['soc_over_lb']:.4f}")
+    table.add_row("makespan", str(m["makespan"]))
+    table.add_row("map + robots loaded", f"{t_load:.3f} s")
+    for phase in ("distances", "assignment", "planning", "validation", "total"):
+        table.add_row(f"time: {phase}", f"{t[phase]:.3f} s")
+    console = Console(width=100)
+    console.print(f"{len(result.paths)} robots on {name} ({w}x{h}), {result.connectivity}-connected", markup=False)
+    console.print(table)
+    for note in result.notes:
+        console.print(f"note: {note}", markup=False)
+    console.print(f"wrote {out}", markup=False)
+
+
+# ---------------------------------------------------------------------------- bench
+
+def add_bench_parser(subparsers) -> argparse.ArgumentParser:
+    from uav_agent.planning.assignment import ASSIGNERS
+    from uav_agent.planning.registry import DEFAULT_PLANNER, PLANNERS
+
+    from .bench import PAPER_SIZES
+    p = subparsers.add_parser("bench", help="benchmarks: the paper's Table 2 and MovingAI instances",
+                              description="Run the planning benchmarks; writes a markdown table and CSV files.")
+    sub = p.add_subparsers(dest="bench", metavar="{paper,movingai}", required=True)
+
+    def common(q: argparse.ArgumentParser, limit: float) -> None:
+        q.add_argument("--time-limit", type=_positive_float, default=limit,
+                       help=f"seconds per instance (default {limit:g}); a worker is killed past it plus a margin")
+        q.add_argument("--connectivity", type=int, choices=(4, 8), default=4)
+        q.add_argument("--data", metavar="DIR",
+                       help="a benchmark data directory laid out like scenarios/data/ (default: the data "
+                            "shipped with the package; the 10,000-agent scenario needs --data)")
+        q.add_argument("--out", default="bench-out", help="directory for the markdown and CSV (default bench-out/)")
+        q.add_argument("--cold-cache", dest="warm_cache", action="store_false",
+                       help="compile into an empty numba cache, so the warm-up measures the cold compile "
+                            "(default: the normal on-disk cache, whose warm-up is a cache load)")
+
+    pp = sub.add_parser("paper", help="the paper's Table 2 on the 450x450 warehouse",
+                        description="The paper's Table 2 re-run: the first N agents of warehouse-450-random-1, "
+                                    "goals assigned by each pipeline, the paper's figures beside ours.")
+    pp.add_argument("--sizes", default=",".join(map(str, PAPER_SIZES)), help="robot counts (comma-separated)")
+    pp.add_argument("--pipelines", default="paper-astar,paper-prm,default",
+                    help=f"comma-separated: {', '.join(PLANNERS)}, or default ({DEFAULT_PLANNER})")
+    pp.add_argument("--repeat", type=_positive_int, default=3, help="runs per instance; the median is reported")
+    pp.add_argument("--assign", choices=list(ASSIGNERS), default="optimal",
+                    help="assignment for every pipeline (default optimal, on true distances)")
+    pp.add_argument("--paper-max", type=_positive_int, default=100,
+                    help="largest N for the paper's (slow) pipelines (default 100)")
+    common(pp, 180.0)
+    pp.set_defaults(func=cmd_bench)
+
+    pm = sub.add_parser("movingai", help="MovingAI maps with the scenarios' own start-goal pairs",
+                        description="MovingAI benchmark instances (no assignment): success rate, time, "
+                                    "SoC / lower bound, makespan.")
+    pm.add_argument("--maps", default="warehouse-10-20-10-2-1", help="comma-separated map names")
+    pm.add_argument("--scens", default="random-1..5", help="e.g. random-1..5,even-1 (default random-1..5)")
+    pm.add_argument("--agents", default="50,100,200,400", help="robot counts (comma-separated)")
+    pm.add_argument("--planner", default=DEFAULT_PLANNER, help=f"{', '.join(PLANNERS)} (default {DEFAULT_PLANNER})")
+    common(pm, 60.0)
+    pm.set_defaults(func=cmd_bench)
+    return p
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from . import bench
+    try:
+        return bench.run_paper(args) if args.bench == "paper" else bench.run_movingai(args)
+    except UavRobotsError as exc:
+        return _fail(exc)
+    except KeyboardInterrupt:
+        return _fail(UavRobotsError("interrupted"))
