@@ -182,15 +182,23 @@ def test_a_refused_plan_ends_the_mission_with_an_error(uav_options, tmp_path):
     _no_harness_trouble(run)
 
 
-def test_a_silent_robot_stops_the_mission_at_the_barrier(uav_options, tmp_path):
+def test_a_silent_robot_is_taken_out_of_the_plan(uav_options, tmp_path):
+    # It executes its moves but stops reporting from tick 2: the UAV holds at the barrier for the
+    # tick deadline, then replans the others from tick 2 without it and finishes, degraded.
     victim = min(1, uav_options.robots - 1)
     run = run_mission(uav_options, Misbehaviour(silent_from={victim: 2}), tmp_path)
-    ticks = [t.k for _, t in run.log.ticks]
-    assert ticks[:2] == [1, 2], f"ticks {ticks[:5]}: the mission never reached tick 2\n{run.tail()}"
-    wrong = run.log.of("barrier", "tick-order")
+    _exited(run, uav_options)
+    ticks = [t for _, t in run.log.ticks]
+    assert [t.k for t in ticks[:2]] == [1, 2], f"the mission never reached tick 2\n{run.tail()}"
+    wrong = run.log.of("barrier", "tick-order", "tick-before-ack", "tick-plan-id")
     assert not wrong, wrong[:3]
-    assert ticks == [1, 2], "a tick was sent after robot {victim} stopped reporting"
-    _fails_with_one_line(run, victim, uav_options, run.log.ticks[1][0])
+    later = [t for t in ticks if t.k > 2]
+    assert later and all(t.plan_id != ticks[0].plan_id for t in later), "no new plan after the robot went silent"
+    replans = [(rid, p) for _, rid, p, _ in run.log.plans if p.plan_id == later[0].plan_id]
+    assert replans and victim not in {rid for rid, _ in replans}, "the silent robot was given the new plan"
+    assert all(p.start_tick == 2 for _, p in replans), [p.start_tick for _, p in replans]
+    assert run.code == 3, f"a mission finished without robot {victim} must exit 3 (degraded)\n{run.tail()}"
+    assert run.record.collisions == 0
     _no_harness_trouble(run)
 
 

@@ -184,6 +184,7 @@ class FakeRobot:
     plan: Plan | None = None
     base: int = 0                       # plan.path[i] is the cell at tick base + i
     acked: dict[str, bool] = field(default_factory=dict)   # plan_id -> ok
+    sent: set[str] = field(default_factory=set)            # plan_ids the UAV sent this robot
     reported: set[int] = field(default_factory=set)        # ticks whose RobotState was put
     done_for: str = ""
     last_state: RobotState | None = None
@@ -295,6 +296,8 @@ class FakeFleet(Waiter):
             robot = self.robots.get(rid) if rid is not None else None
             up = robot is not None and robot.token is not None
             self.log.plans.append((time.monotonic(), rid if rid is not None else -1, plan, up))
+            if robot is not None:
+                robot.sent.add(plan.plan_id)
             self.cv.notify_all()
         if robot is None:
             self._violation("plan-unknown", f"plan {plan.plan_id} on {key}: no such robot in the world")
@@ -310,17 +313,21 @@ class FakeFleet(Waiter):
             return
         with self.cv:
             prev = self.log.ticks[-1][1].k if self.log.ticks else 0
+            prev_plan = self.log.ticks[-1][1].plan_id if self.log.ticks else None
             self.log.ticks.append((time.monotonic(), tick))
             problems = []
             if tick.k != prev + 1:
                 problems.append(("tick-order", f"Tick {tick.k} followed Tick {prev}"))
-            if prev == 0:
-                unacked = [r.rid for r in self.robots.values() if not r.acked.get(tick.plan_id)]
+            if tick.plan_id != prev_plan:
+                # The first tick of a plan: every robot it was sent to has taken it (a replan leaves out
+                # the robots the UAV gave up on; they get no plan and stay).
+                unacked = [r.rid for r in self.robots.values()
+                           if (prev == 0 or tick.plan_id in r.sent) and not r.acked.get(tick.plan_id)]
                 if unacked:
                     problems.append(("tick-before-ack", f"Tick {tick.k} (plan {tick.plan_id}) before robots "
                                                         f"{unacked} acknowledged that plan"))
             else:
-                silent = [r.rid for r in self.robots.values() if prev not in r.reported]
+                silent = [r.rid for r in self.robots.values() if r.acked.get(tick.plan_id) and prev not in r.reported]
                 if silent:
                     problems.append(("barrier", f"Tick {tick.k} before robots {silent} reported tick {prev}"))
             if self.log.ends:
@@ -393,7 +400,7 @@ class FakeFleet(Waiter):
         ack = PlanAck(robot=rid, plan_id=plan.plan_id, ok=ok, error=error)
         with self.cv:
             if ok and (held is None or held.plan_id != plan.plan_id):
-                robot.plan, robot.base, robot.done_for = plan, self.seen_tick, ""
+                robot.plan, robot.base, robot.done_for = plan, plan.start_tick or self.seen_tick, ""
             robot.acked[plan.plan_id] = ok
             self.log.acks.append((time.monotonic(), ack))
         self._put(robot, self.keys.ack(rid), ack)
@@ -401,7 +408,7 @@ class FakeFleet(Waiter):
     def _target(self, robot: FakeRobot, tick: Tick) -> Cell:
         plan = robot.plan
         if plan is None or plan.plan_id != tick.plan_id:
-            if plan is not None:
+            if plan is not None and tick.plan_id in robot.sent:
                 self._violation("tick-plan-id", f"Tick {tick.k} names plan {tick.plan_id}, robot {robot.rid} "
                                                 f"holds {plan.plan_id}")
             return robot.cell  # the contract: a tick for another plan (or none) means stay

@@ -16,6 +16,10 @@ from .errors import UavRobotsError
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 CONNECT_TIMEOUT_MS = 20_000
+# A killed process is noticed at once (its TCP link closes); the lease only bounds how long a frozen
+# one keeps its session. Longer than a robot's tick deadline, so that a short freeze (a paused process,
+# a busy machine) is a stall the UAV repairs, not a lost session the robot must rebuild.
+LEASE_MS = 10_000
 
 
 def hub_config(listen: list[str]) -> str:
@@ -26,7 +30,7 @@ def hub_config(listen: list[str]) -> str:
     })
 
 
-def client_config(connect: list[str], timeout_ms: int = CONNECT_TIMEOUT_MS, lease_ms: int = 3000) -> str:
+def client_config(connect: list[str], timeout_ms: int = CONNECT_TIMEOUT_MS, lease_ms: int = LEASE_MS) -> str:
     return json.dumps({
         "mode": "client",
         "connect": {"endpoints": connect, "timeout_ms": timeout_ms},

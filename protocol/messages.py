@@ -29,11 +29,16 @@ class Message:
 
 @dataclass(frozen=True)
 class Plan(Message):
-    """UAV -> robot: the cells to occupy at ticks 0..len-1 (cell 0 is the start)."""
+    """UAV -> robot: path[i] is the cell to occupy at tick start_tick + i (path[0] is where it stands).
+
+    A replan during a mission starts at the tick the fleet holds at; every tick after it
+    names the new plan_id, so all robots switch at the same boundary.
+    """
     robot: int
     plan_id: str
     path: list[Cell]
     goal: Cell
+    start_tick: int = 0
 
 
 @dataclass(frozen=True)

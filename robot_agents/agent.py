@@ -12,6 +12,7 @@ one MoveBatch, so a pool of 500 robots costs one query per tick, not 500.
 from __future__ import annotations
 
 import argparse
+import os
 import queue
 import sys
 import threading
@@ -20,11 +21,12 @@ from typing import Any, Callable, Sequence
 from protocol.config import add_session_arguments, session_config
 from protocol.errors import ProtocolError, UavRobotsError
 from protocol.keys import Keys, robot_id_from_key
-from protocol.messages import (MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Plan, Tick, decode,
+from protocol.messages import (Done, MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Plan, Tick, decode,
                                encode)
 from protocol.process import Lifecycle
 from protocol.transport import Transport, ZenohTransport
 
+from .faults import Fault, parse_fault
 from .robot import RobotMachine, Step
 
 MOVE_TIMEOUT_S = 5.0   # longer than the world's batch timeout, so a slow tick is still answered
@@ -70,7 +72,8 @@ class RobotPool(Lifecycle):
     """The robots hosted by one process, wired to a transport."""
 
     def __init__(self, ids: Sequence[int], transport: Transport, fleet: str, connectivity: int = 4,
-                 move_timeout_s: float = MOVE_TIMEOUT_S, stop: threading.Event | None = None) -> None:
+                 move_timeout_s: float = MOVE_TIMEOUT_S, stop: threading.Event | None = None,
+                 faults: Sequence[Fault] = ()) -> None:
         super().__init__(stop)
         if not ids:
             raise UavRobotsError("a robot pool needs at least one robot id")
@@ -86,6 +89,9 @@ class RobotPool(Lifecycle):
         self._uav_seen = False
         self._worker = threading.Thread(target=self._loop, name="robot-pool", daemon=True)
         self.label = format_ids(list(self.machines))
+        self.faults = {f.robot: f for f in faults if f.robot in self.machines}
+        self.dead: set[int] = set()
+        self._tokens: dict[int, Any] = {}
 
     # ------------------------------------------------------------ wiring
     def start(self) -> None:
@@ -102,7 +108,8 @@ class RobotPool(Lifecycle):
         self._worker.start()
         # Last: the tokens tell the UAV that everything above is listening.
         for r in self.machines:
-            self.keep(self.transport.announce(k.alive_robot(r)))
+            self._tokens[r] = self.transport.announce(k.alive_robot(r))
+            self.keep(self._tokens[r])
 
     def _queue_plan(self, robot: int) -> Callable[[str, bytes], None]:
         return lambda _key, payload: self._work.put(("plan", (robot, payload)))
@@ -157,11 +164,30 @@ class RobotPool(Lifecycle):
         self.transport.put(key, encode(msg))
 
     def _on_plan(self, robot: int, payload: bytes) -> None:
+        if robot in self.dead:
+            return
         plan = decode(payload, Plan)
-        ack = self.machines[robot].on_plan(plan)
+        m = self.machines[robot]
+        ack = m.on_plan(plan)
         if not ack.ok:
             _warn(f"robot {robot}: refused plan {plan.plan_id}: {ack.error}")
         self._put(robot, self.keys.ack(robot), ack)
+        fault = self.faults.get(robot)
+        if ack.ok and fault is not None and fault.kind == "liar":
+            _warn(f"robot {robot}: fault {fault}: claims its goal without moving")
+            self._put(robot, self.keys.done(robot), Done(robot=robot, tick=m.seen_tick, cell=tuple(plan.goal)))
+
+    def _apply_faults(self, k: int) -> set[int]:
+        """The robots that act at tick k; a crash fault due now kills its robot."""
+        for r, f in self.faults.items():
+            if f.kind == "crash" and k >= f.tick and r not in self.dead:
+                _warn(f"robot {r}: fault {f}: dies at tick {k}")
+                if len(self.machines) == 1:
+                    os._exit(3)   # abruptly, like a real crash: no goodbye, no clean session close
+                self.dead.add(r)
+                self._tokens[r].close()
+        return {r for r in self.machines if r not in self.dead
+                and not (r in self.faults and self.faults[r].silent_at(k))}
 
     def _on_tick(self, payload: bytes) -> None:
         tick = decode(payload, Tick)
@@ -169,7 +195,10 @@ class RobotPool(Lifecycle):
             raise ProtocolError(f"tick {tick.k} is not a positive step number")
         steps: dict[int, Step] = {}
         gaps: list[int] = []
+        acting = self._apply_faults(tick.k) if self.faults else self.machines.keys()
         for r, m in self.machines.items():
+            if r not in acting:
+                continue
             last = m.last_tick
             kind = m.classify(tick)
             if kind == "old":
@@ -237,9 +266,9 @@ class RobotPool(Lifecycle):
 
 def run_robots(ids: Sequence[int], transport: Transport, fleet: str, connectivity: int = 4,
                move_timeout_s: float = MOVE_TIMEOUT_S, stop: threading.Event | None = None,
-               on_ready: Callable[[RobotPool], None] | None = None) -> int:
+               on_ready: Callable[[RobotPool], None] | None = None, faults: Sequence[Fault] = ()) -> int:
     """Host `ids` until the mission ends, the UAV goes away, or `stop` is set. Returns 0."""
-    pool = RobotPool(ids, transport, fleet, connectivity, move_timeout_s, stop)
+    pool = RobotPool(ids, transport, fleet, connectivity, move_timeout_s, stop, faults)
     try:
         pool.start()
         if on_ready is not None:
@@ -268,6 +297,9 @@ def add_robot_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--connectivity", type=int, choices=(4, 8), default=4)
     p.add_argument("--move-timeout", type=float, default=MOVE_TIMEOUT_S, metavar="S",
                    help="how long to wait for the world's answer to a move")
+    p.add_argument("--fault", action="append", default=[], metavar="SPEC",
+                   help="inject a fault into a hosted robot (repeatable): crash:ROBOT@TICK, "
+                        "stall:ROBOT@TICK:TICKS or liar:ROBOT")
 
 
 def robot_command(args: argparse.Namespace) -> int:
@@ -277,6 +309,7 @@ def robot_command(args: argparse.Namespace) -> int:
     if any(i < 0 for i in ids):
         raise UavRobotsError("robot ids must be non-negative")
     Keys(args.fleet)  # a bad fleet name fails before the session opens
+    faults = [parse_fault(f) for f in args.fault]
     conf = session_config(args.listen, args.connect, args.zenoh_config)
     life = Lifecycle()   # signals stop the pool even while the session is still opening
     life.stop_on_signals()
@@ -288,7 +321,7 @@ def robot_command(args: argparse.Namespace) -> int:
 
         pools: list[RobotPool] = []
         code = run_robots(ids, transport, args.fleet, args.connectivity, args.move_timeout, stop,
-                          lambda pool: (pools.append(pool), ready(pool)))
+                          lambda pool: (pools.append(pool), ready(pool)), faults)
     reason = pools[0].exit_reason if pools and pools[0].exit_reason else "stopped"
     print(f"robots {format_ids(ids)}: {reason}", flush=True)
     return code

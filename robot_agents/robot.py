@@ -69,6 +69,8 @@ class RobotMachine:
             # A resent plan is acknowledged again; a different plan under the same id is a mistake.
             return self._ack(pid, same, "" if same else f"plan {pid} was already received with another path")
         problem = plan_problem(plan, self.robot_id, self.connectivity)
+        if not problem and plan.start_tick and plan.start_tick < self.last_tick:
+            problem = f"plan starts at tick {plan.start_tick}, robot {self.robot_id} already executed tick {self.last_tick}"
         if problem:
             return self._ack(pid, False, problem)
         start = (int(plan.path[0][0]), int(plan.path[0][1]))
@@ -78,7 +80,9 @@ class RobotMachine:
             return self._ack(pid, False, f"busy stepping plan {self.plan.plan_id if self.plan else ''}")
         # While stepping, a new plan that starts where the robot stands is a replan from here.
         self.plan = plan
-        self.base = self.seen_tick
+        # A UAV that names the plan's first tick is believed; one that does not (an older UAV)
+        # means "from the last tick heard of".
+        self.base = plan.start_tick or self.seen_tick
         self.state = READY
         self.done_sent_for = ""
         return self._ack(pid, True, "")

@@ -23,7 +23,7 @@ import numpy as np
 
 from protocol.config import add_session_arguments, describe_session, session_config
 from protocol.errors import ProtocolError, UavRobotsError
-from protocol.keys import Keys
+from protocol.keys import Keys, robot_id_from_key
 from protocol.log import Throttled
 from protocol.mapfile import Cell, format_rows, read_scen
 from protocol.messages import (CameraRequest, MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Record,
@@ -108,6 +108,12 @@ class MoveDesk:
 
     def __init__(self, judge: MoveJudge, batch_timeout_s: float = MOVE_BATCH_TIMEOUT_S) -> None:
         self.judge = judge
+        # Robots whose liveliness token is gone (killed, frozen past the lease) are not waited for:
+        # a lost robot must not make every later tick wait out the batch timeout.
+        self.gone: set[int] = set()
+        # Robots that did not ask in the last resolved tick (stalled, or never moving) are not waited
+        # for either, until they ask again: one silent robot costs one batch timeout, not one per tick.
+        self.quiet: set[int] = set()
         self.batch_timeout_s = batch_timeout_s
         self.cv = threading.Condition()
         self.tick: int | None = None                          # the tick being collected
@@ -147,9 +153,23 @@ class MoveDesk:
                                                      cell=j.positions[req.robot],
                                                      reason="superseded by a newer request")))
                 self.batch[req.robot] = (req, reply)
-                if len(self.batch) == len(j.positions):
-                    sends += self._resolve("")  # everybody asked: nobody is missing
+                if self._everyone_asked():
+                    sends += self._resolve("")  # nobody is missing
         _send(sends)
+
+    def _everyone_asked(self) -> bool:
+        return all(r in self.batch or r in self.gone or r in self.quiet for r in self.judge.positions)
+
+    def robot_alive(self, robot: int, alive: bool) -> list[tuple[Reply, MoveResult]]:
+        """Liveliness news; a tick waiting only for a robot that just vanished is resolved now."""
+        with self.cv:
+            if alive:
+                self.gone.discard(robot)
+                return []
+            self.gone.add(robot)
+            if self.tick is not None and self.batch and self._everyone_asked():
+                return self._resolve(f"robot {robot} vanished: stayed")
+            return []
 
     def _resolve(self, why_missing: str) -> list[tuple[Reply, MoveResult]]:
         tick, batch = self.tick, self.batch
@@ -157,6 +177,7 @@ class MoveDesk:
         assert tick is not None
         outcomes = self.judge.resolve(tick, {r: (q.frm, q.to) for r, (q, _) in batch.items()})
         missing = sorted(set(self.judge.positions) - set(batch))
+        self.quiet = set(missing)
         if missing:
             self.judge.note_missing(tick, missing, why_missing)
         out = []
@@ -244,6 +265,7 @@ class World(Lifecycle):
             t.serve(k.record, self._on_record),
             t.subscribe(k.mission_end, self._on_mission_end),
             t.watch_alive(k.alive_uav, self._on_uav),
+            t.watch_alive(k.alive_robots, self._on_robot_alive),
         )
         self.keep(t.announce(k.alive_world))
 
@@ -435,6 +457,11 @@ class World(Lifecycle):
             return
         if self.mission_ended is None:
             self.mission_ended = time.monotonic()
+
+    def _on_robot_alive(self, key: str, alive: bool) -> None:
+        rid = robot_id_from_key(key)
+        if rid is not None and self.desk is not None:
+            _send(self.desk.robot_alive(rid, alive))
 
     def _on_uav(self, _key: str, alive: bool) -> None:
         self.uav_alive = alive

@@ -158,11 +158,18 @@ def test_unreachable_goal_is_a_planning_error(assign):
         plan_mission(free, starts, goals, assign=assign)
 
 
+def test_more_goals_than_robots_leaves_the_farthest_unserved():
+    free = np.ones((5, 5), dtype=bool)
+    r = plan_mission(free, [(0, 0), (4, 4)], [(4, 3), (0, 1), (2, 2)])
+    assert sorted(r.goals) == [(0, 1), (4, 3)] and r.metrics["sum_of_costs"] == 2
+
+
 @pytest.mark.parametrize("kwargs, match", [
     (dict(starts=[(0, 0), (0, 0)]), "starts 0 and 1 are both at"),
     (dict(starts=[(9, 0), (1, 0)]), "off the"),
     (dict(goals=[(2, 1), (4, 4)]), "obstacle"),
-    (dict(goals=[(4, 4)]), "counts must match"),
+    (dict(goals=[(4, 4)]), "every robot needs its own goal"),
+    (dict(goals=[(4, 4), (3, 4), (2, 4)], assign="none"), "the counts must match"),
     (dict(starts=[], goals=[]), "no robots"),
     (dict(planner="astar9"), "unknown planner"),
     (dict(assign="greedy"), "unknown assignment"),

@@ -39,11 +39,9 @@ def test_a_uav_without_a_tick_barrier_fails_the_suite(tmp_path):
         "from uav_agent.fleet import FleetLink\n"
         "from protocol.process import command_main\n"
         "from uav_agent.cli import build_parser\n"
-        "wait = FleetLink.wait_until\n"
-        "def no_barrier(self, ready, timeout, failure, abort=None):\n"
-        "    if 'did not report tick' not in failure():\n"
-        "        wait(self, ready, timeout, failure, abort)\n"
-        "FleetLink.wait_until = no_barrier\n"
+        "from uav_agent.mission import Mission\n"
+        "FleetLink.wait_tick = lambda self, robots, k, timeout, interrupt: {}\n"
+        "Mission._recover = lambda self, k, faults: None\n"
         "sys.exit(command_main(build_parser))\n")
     cmd = f"{shlex.quote(sys.executable)} {shlex.quote(str(hasty))} {UAV_ARGS}"
     run = _suite("--uav-cmd", cmd, "-k", "barrier_holds")

@@ -43,22 +43,27 @@ def add_uav_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robots", type=int, default=None, help="expected fleet size (default: as many as seen)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", help="directory for report.json and images")
-    p.add_argument("--tick-timeout", type=float, default=10.0)
+    p.add_argument("--tick-timeout", type=float, default=10.0,
+                   help="seconds a robot may take to report a tick before it counts as stalled (default 10)")
+    p.add_argument("--tick-rate", type=float, default=0.0, metavar="HZ",
+                   help="at most this many ticks per second, as robots that need time to cross a cell "
+                        "(default 0: as fast as the fleet reports)")
     add_planning_arguments(p)
 
 
 def uav_command(a: argparse.Namespace) -> int:
-    from .mission import Mission, MissionConfig, summary
+    from .mission import Mission, MissionConfig, exit_code, summary
     from .planning.assignment import DEFAULT_ASSIGNMENT
 
     cfg = MissionConfig(fleet=a.fleet, robots=a.robots, listen=a.listen, connect=a.connect,
                         zenoh_config=a.zenoh_config, mavlink_url=a.mavlink, planner=a.planner,
                         assign=a.assign or DEFAULT_ASSIGNMENT, connectivity=a.connectivity,
                         time_limit_s=a.time_limit, fallback=not a.no_fallback, seed=a.seed,
-                        out=Path(a.out) if a.out else None, tick_timeout_s=a.tick_timeout)
+                        out=Path(a.out) if a.out else None, tick_timeout_s=a.tick_timeout,
+                        tick_rate_hz=a.tick_rate)
     report = Mission(cfg).run()
     print(summary(report, cfg.out), flush=True)
-    return 0 if report["completed"] else 1
+    return exit_code(report)
 
 
 build_parser = one_command("python -m uav_agent", "The UAV agent: fly, see, plan, drive, land.",

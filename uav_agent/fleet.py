@@ -28,6 +28,7 @@ class FleetLink:
         self.cells: dict[int, tuple[int, int]] = {}
         self.errors: dict[int, str] = {}
         self.done: dict[int, Done] = {}
+        self.heard: dict[int, float] = {}       # when each robot last showed life (a state, or its token)
         self._warn = Throttled("uav")
         self._handles = [
             transport.subscribe(keys.all_acks, self._on_ack),
@@ -70,6 +71,7 @@ class FleetLink:
                 if msg.tick >= self.last_tick.get(msg.robot, -1):
                     self.last_tick[msg.robot] = msg.tick
                     self.cells[msg.robot] = msg.cell
+                self.heard[msg.robot] = time.monotonic()
                 if msg.status == "error":
                     self.errors[msg.robot] = msg.error or "robot reported an error"
                 self.cv.notify_all()
@@ -78,7 +80,7 @@ class FleetLink:
         msg = self._decode(key, payload, Done)
         if msg is not None:
             with self.cv:
-                self.done.setdefault(msg.robot, msg)
+                self.done[msg.robot] = msg   # the latest: a replanned robot raises Done again
                 self.cv.notify_all()
 
     def _on_robot_alive(self, key: str, alive: bool) -> None:
@@ -89,6 +91,7 @@ class FleetLink:
             if alive:
                 self.alive.add(rid)
                 self.lost.discard(rid)
+                self.heard[rid] = time.monotonic()
             elif rid in self.alive:
                 self.alive.discard(rid)
                 self.lost.add(rid)
@@ -111,6 +114,29 @@ class FleetLink:
                 if left <= 0:
                     raise MissionError(failure())
                 self.cv.wait(min(left, 0.5))
+
+    def wait_tick(self, robots: list[int], k: int, timeout: float, interrupt: Callable[[], bool]) -> dict[str, list[int]]:
+        """Wait until every robot reported tick k; returns what went wrong instead (empty: nothing).
+
+        lost: liveliness gone; error: reported status error; stalled: no state for k within `timeout`.
+        `interrupt()` ends the wait early (a vehicle fault), with nothing reported.
+        """
+        deadline = time.monotonic() + timeout
+        with self.cv:
+            while True:
+                lost = sorted(set(robots) & self.lost)
+                error = sorted(r for r in robots if r in self.errors and r not in lost)
+                if lost or error:
+                    return {"lost": lost, "error": error}
+                late = [r for r in robots if self.last_tick.get(r, -1) < k]
+                if not late:
+                    return {}
+                if interrupt():
+                    return {}
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return {"stalled": late}
+                self.cv.wait(min(left, 0.1))
 
     def lost_among(self, robots: list[int]) -> str | None:
         gone = sorted(set(robots) & self.lost)

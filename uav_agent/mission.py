@@ -18,13 +18,16 @@ from typing import Any
 
 from protocol.config import DEFAULT_ENDPOINT, session_config
 from protocol.errors import MissionError, ProtocolError
+from protocol.grid import Cell
 from protocol.keys import Keys
 from protocol.messages import (CameraFrame, CameraRequest, MissionEnd, MissionStatus, Plan, Record, RecordRequest, Tick,
                                WorldInfo, WorldInfoRequest, decode, encode)
 from protocol.transport import Transport, ZenohTransport
 
+from .events import EventLog
 from .fleet import FleetLink
 from .progress import Progress
+from .watch import VehicleWatch
 
 QUERY_TIMEOUT_S = 10.0
 ABORT_LAND_TIMEOUT_S = 60.0
@@ -50,6 +53,7 @@ class MissionConfig:
     out: Path | None = None
     startup_timeout_s: float = 30.0
     tick_timeout_s: float = 10.0
+    tick_rate_hz: float = 0.0          # at most this many ticks per second (0: as fast as the fleet goes)
     min_px_per_cell: float = 20.0
 
 
@@ -80,6 +84,32 @@ def _query(transport: Transport, key: str, request: Any, reply_type: type, what:
         raise MissionError(f"the world's {what} answered garbage: {exc}") from None
 
 
+EXIT_COMPLETED, EXIT_ABORTED, EXIT_DEGRADED = 0, 1, 3
+MAX_REPLANS = 10           # recoveries in one mission before the UAV gives up and lands
+DONE_WAIT_S = 5.0          # after the last tick: how long the Done flags may take to arrive
+
+
+@dataclass
+class PlanState:
+    """The plan the fleet executes now: robot r is at paths[r][i] at tick start_tick + i."""
+    plan_id: str
+    start_tick: int
+    paths: dict[int, list[Cell]]
+    goals: dict[int, Cell]
+
+    @property
+    def ids(self) -> list[int]:
+        return sorted(self.paths)
+
+    @property
+    def end_tick(self) -> int:
+        return self.start_tick + max(len(p) for p in self.paths.values()) - 1
+
+    def cell(self, robot: int, tick: int) -> Cell:
+        path = self.paths[robot]
+        return tuple(path[min(max(tick - self.start_tick, 0), len(path) - 1)])
+
+
 class Mission:
     def __init__(self, cfg: MissionConfig, progress: Progress | None = None) -> None:
         self.cfg = cfg
@@ -91,6 +121,19 @@ class Mission:
         self.uav: dict[str, Any] = {"mavlink_url": cfg.mavlink_url, "armed": False,
                                     "max_altitude_m": 0.0, "hover": None, "landed": False}
         self.frames: list[CameraFrame] = []
+        self.events = EventLog()
+        self.tick = 0                           # the last tick sent
+        self.replans = 0
+        self.blocked: dict[int, Cell] = {}      # robots out of the plan (lost, stalled, faulty) -> their cell
+        self.blocked_at: dict[int, float] = {}  # when each was taken out (a later sign of life brings it back)
+        self.verified: dict[int, bool] = {}
+        self._contradicted: set[int] = set()
+        self.unserved: list[Cell] = []
+        self.plan: PlanState | None = None
+        self.goal_of: dict[int, Cell] = {}      # each robot's goal in the last plan it was part of
+        self.first_result = None
+        self.model = None
+        self.watch: VehicleWatch | None = None
         self._ended = False
 
     # ------------------------------------------------------------ helpers
@@ -112,6 +155,18 @@ class Mission:
         self.frames.append(frame)
         return frame
 
+    def _event(self, kind: str, robots, what: str, action: str = "") -> None:
+        e = self.events.add(self.tick, kind, list(robots), what, action)
+        self.progress.phase("event", f"tick {e.tick}: {kind} {list(e.robots) or ''} {what}"
+                                     + (f" -> {action}" if action else ""))
+
+    def _vehicle_fault(self, why: str) -> None:
+        self._event("vehicle", [], why, "the mission stops")
+
+    def _check_vehicle(self) -> None:
+        if self.watch is not None and self.watch.fault:
+            raise MissionError(f"vehicle: {self.watch.fault}")
+
     # ------------------------------------------------------------ phases
     def run(self) -> dict[str, Any]:
         from .flight import Flight
@@ -130,20 +185,33 @@ class Mission:
             self._warm.start()
             self.flight = Flight(self.cfg.mavlink_url)
             self.flight.connect(timeout_s=self.cfg.startup_timeout_s)
+            self.watch = VehicleWatch(self.flight, self._vehicle_fault)
             self.clock.lap("connect")
 
             self._fly_and_survey()
-            model = self._perceive()
-            result = self._plan(model)
-            self._dispatch(result)
-            self._execute(result)
-            self._end(True, "all robots at their goals")
+            model = self.model = self._perceive()
+            result = self.first_result = self._plan(model)
+            self._dispatch(PlanState(secrets.token_hex(4), 0, dict(zip(self.ids, map(list, result.paths))),
+                                     dict(zip(self.ids, result.goals))), first=True)
+            while True:
+                self._execute()
+                self._verify()
+                back = self._rejoining()
+                if not back:
+                    break
+                self._recover(self.tick, {"rejoin": back})
+            self._check_vehicle()
+            self.watch.expect_airborne(False)
+            self._end(self._outcome() != "failed", self._reason())
             self._land()
-            self._finish_report(result, model)
+            self._finish_report()
             return self.report
-        except Exception:
+        except Exception as exc:
             # A failed mission must not leave the drone hovering armed: land it, then report the failure.
+            self._event("abort", [], str(exc).splitlines()[0] if str(exc) else type(exc).__name__,
+                        "ended the mission and landed the vehicle")
             self._abort_landing()
+            self._abort_report(str(exc))
             raise
         finally:
             if not self._ended:
@@ -151,6 +219,8 @@ class Mission:
                     self._end(False, "mission aborted")
                 except Exception:  # noqa: BLE001 - the session may already be gone
                     pass
+            if self.watch is not None:
+                self.watch.close()
             if self.flight is not None:
                 self.flight.close()
             if hasattr(self, "fleet"):
@@ -175,9 +245,10 @@ class Mission:
         self.uav["armed"] = True
         first = self._capture()  # on the ground: only to learn the camera's intrinsics
         self.frames.clear()
-        poses = survey_poses(self.info.width, self.info.height, self.info.cell_size_m, first,
-                             min_px_per_cell=self.cfg.min_px_per_cell)
+        poses = self._poses = survey_poses(self.info.width, self.info.height, self.info.cell_size_m, first,
+                                           min_px_per_cell=self.cfg.min_px_per_cell)
         self.flight.takeoff(poses[0][2])
+        self.watch.expect_airborne(True)
         self._track_altitude()
         self.clock.lap("takeoff")
         for i, (north, east, alt) in enumerate(poses):
@@ -197,8 +268,6 @@ class Mission:
         self.clock.lap("survey")
 
     def _perceive(self):
-        from .perception import perceive
-
         # The robots on the network name the ids the camera may see; a marker read as any
         # other id is a misread, not a robot.
         expected = self.cfg.robots
@@ -209,22 +278,7 @@ class Mission:
         with self.fleet.cv:
             known = set(self.fleet.alive) or None
         self._status("perceive", message=f"{len(self.frames)} image(s) through OpenCV")
-        model = perceive(self.frames, self.info.width, self.info.height, self.info.cell_size_m, known_ids=known)
-        for attempt in range(1, RELOOK_ROUNDS + 1):
-            missing = sorted(set(known or ()) - set(model.robots))
-            if not model.unidentified or not missing:
-                break
-            # A marker is there but its id did not decode: look again from lower down.
-            cells = model.unidentified[:RELOOK_MAX_CELLS]
-            self._status("perceive", message=f"{len(cells)} unreadable marker(s): a closer look (round {attempt})")
-            scale = 2.0 ** attempt
-            for x, y in cells:
-                c = self.info.cell_size_m
-                alt = max(RELOOK_MIN_ALT_M, self._survey_alt / scale)
-                self.flight.goto(-(y + 0.5) * c, (x + 0.5) * c, alt)
-                self._capture()
-            model = perceive(self.frames, self.info.width, self.info.height, self.info.cell_size_m, known_ids=known)
-            self.flight.goto(*self._hover_ned)
+        model = self._see(self.frames, known)
         if model.unseen:
             raise MissionError(f"perception: {model.unseen} cells were not seen by any image")
         if known is not None and set(model.robots) != known:
@@ -237,6 +291,39 @@ class Mission:
         self.perception_warnings = model.warnings
         self.clock.lap("perceive")
         return model
+
+    def _see(self, frames: list[CameraFrame], known: set[int] | None):
+        """Perceive `frames`; markers whose id did not decode get a closer look from lower down."""
+        from .perception import perceive
+
+        model = perceive(frames, self.info.width, self.info.height, self.info.cell_size_m, known_ids=known)
+        for attempt in range(1, RELOOK_ROUNDS + 1):
+            missing = sorted(set(known or ()) - set(model.robots))
+            if not model.unidentified or not missing:
+                break
+            cells = model.unidentified[:RELOOK_MAX_CELLS]
+            self.progress.phase("perceive", f"{len(cells)} unreadable marker(s): a closer look (round {attempt})")
+            scale = 2.0 ** attempt
+            for x, y in cells:
+                c = self.info.cell_size_m
+                alt = max(RELOOK_MIN_ALT_M, self._survey_alt / scale)
+                self.flight.goto(-(y + 0.5) * c, (x + 0.5) * c, alt)
+                frame = self._capture()
+                if frames is not self.frames:
+                    frames.append(frame)
+            model = perceive(frames, self.info.width, self.info.height, self.info.cell_size_m, known_ids=known)
+            self.flight.goto(*self._hover_ned)
+        return model
+
+    def _look(self) -> dict[int, Cell]:
+        """A fresh look at the whole floor from the survey poses: robot id -> the cell the camera sees it on."""
+        frames = []
+        for north, east, alt in self._poses:
+            self.flight.goto(north, east, alt)
+            frames.append(self._capture())
+        self.flight.goto(*self._hover_ned)
+        model = self._see(frames, set(self.ids))
+        return {r: tuple(c) for r, c in model.robots.items()}
 
     def _plan(self, model):
         from .planning.pipeline import plan_mission
@@ -259,55 +346,205 @@ class Mission:
         self.clock.lap("plan")
         return result
 
-    def _dispatch(self, result) -> None:
+    def _dispatch(self, plan: PlanState, first: bool = False) -> list[int]:
+        """Check the plan, send it, wait for the acknowledgements; returns the robots that failed to take it."""
         from .planning.types import Problem
         from .planning.validator import check
 
+        ids = plan.ids
+        free = self.model_free.copy()
+        for x, y in self.blocked.values():
+            free[y, x] = False
         # The validator is independent of the planners: nothing unchecked leaves the UAV.
-        check(Problem(self.model_free, list(result.starts), list(result.goals), self.cfg.connectivity),
-              result.paths)
-        ids = self.ids
-        self._status("dispatch", message=f"waiting for {len(ids)} robots to be alive, then sending plans")
-        self.fleet.wait_until(lambda: set(ids) <= self.fleet.alive, self.cfg.startup_timeout_s,
-                              lambda: f"robots {sorted(set(ids) - self.fleet.alive)[:10]} never came alive "
-                                      f"within {self.cfg.startup_timeout_s:g} s")
-        self.plan_id = secrets.token_hex(4)
-        for rid, path, goal in zip(ids, result.paths, result.goals):
-            self.transport.put(self.keys.plan(rid), encode(Plan(robot=rid, plan_id=self.plan_id, path=list(path),
-                                                              goal=goal, seq=self._next())))
-        pid = self.plan_id
-        self.fleet.wait_until(
-            lambda: all(self.fleet.acks.get(r) is not None and self.fleet.acks[r].plan_id == pid for r in ids),
-            self.cfg.startup_timeout_s,
-            lambda: f"robots {[r for r in ids if r not in self.fleet.acks][:10]} did not acknowledge their plan",
-            abort=lambda: self.fleet.lost_among(ids))
-        refused = [(r, self.fleet.acks[r].error) for r in ids if not self.fleet.acks[r].ok]
-        if refused:
+        check(Problem(free, [tuple(plan.paths[r][0]) for r in ids], [plan.goals[r] for r in ids],
+                      self.cfg.connectivity), [plan.paths[r] for r in ids])
+        if first:
+            self._status("dispatch", message=f"waiting for {len(ids)} robots to be alive, then sending plans")
+            self.fleet.wait_until(lambda: set(ids) <= self.fleet.alive, self.cfg.startup_timeout_s,
+                                  lambda: f"robots {sorted(set(ids) - self.fleet.alive)[:10]} never came alive "
+                                          f"within {self.cfg.startup_timeout_s:g} s")
+        self.plan = plan
+        self.goal_of.update(plan.goals)
+        for rid in ids:
+            self.transport.put(self.keys.plan(rid), encode(Plan(
+                robot=rid, plan_id=plan.plan_id, path=plan.paths[rid], goal=plan.goals[rid],
+                start_tick=plan.start_tick, seq=self._next())))
+        pid = plan.plan_id
+        acked = lambda r: self.fleet.acks.get(r) is not None and self.fleet.acks[r].plan_id == pid  # noqa: E731
+        try:
+            self.fleet.wait_until(lambda: all(acked(r) for r in ids), self.cfg.startup_timeout_s,
+                                  lambda: f"robots {[r for r in ids if not acked(r)][:10]} did not acknowledge "
+                                          f"plan {pid}",
+                                  abort=lambda: self.fleet.lost_among(ids))
+        except MissionError as exc:
+            if first:
+                raise
+            self._event("dispatch", [r for r in ids if not acked(r)], str(exc))
+        with self.fleet.cv:
+            failed = [r for r in ids if not acked(r) or not self.fleet.acks[r].ok]
+        refused = [(r, self.fleet.acks[r].error) for r in failed if acked(r)]
+        if refused and first:
             raise MissionError(f"robot {refused[0][0]} refused its plan: {refused[0][1]}")
-        self.clock.lap("dispatch")
+        for r, why in refused:
+            self._event("plan-refused", [r], why)
+        if first:
+            self.clock.lap("dispatch")
+        return failed
 
-    def _execute(self, result) -> None:
-        ids = self.ids
-        ticks = max(len(p) for p in result.paths) - 1
-        self.ticks = ticks
-        self._status("executing", tick=0, ticks=ticks, robots=len(ids), message="")
-        self.progress.phase("execute", f"{ticks} ticks, {len(ids)} robots in lockstep")
-        for k in range(1, ticks + 1):
-            self.transport.put(self.keys.tick, encode(Tick(k=k, ticks=ticks, plan_id=self.plan_id, seq=self._next())))
-            self.fleet.wait_until(
-                lambda: all(self.fleet.last_tick.get(r, -1) >= k for r in ids), self.cfg.tick_timeout_s,
-                lambda: f"robots {[r for r in ids if self.fleet.last_tick.get(r, -1) < k][:10]} "
-                        f"did not report tick {k} within {self.cfg.tick_timeout_s:g} s",
-                abort=lambda: self.fleet.lost_among(ids))
-            done = len(self.fleet.done)
-            self.progress.ticks(k, ticks, done, len(ids))
-            if k % 10 == 0 or k == ticks:
+    def _execute(self) -> None:
+        self._status("executing", tick=0, ticks=self.plan.end_tick, robots=len(self.ids), message="")
+        self.progress.phase("execute", f"{self.plan.end_tick} ticks, {len(self.ids)} robots in lockstep")
+        period = 1.0 / self.cfg.tick_rate_hz if self.cfg.tick_rate_hz > 0 else 0.0
+        next_at = time.monotonic()
+        while self.tick < self.plan.end_tick:
+            self._check_vehicle()
+            if period:
+                next_at += period
+                time.sleep(max(0.0, next_at - time.monotonic()))
+            plan = self.plan
+            k = self.tick = self.tick + 1
+            self.transport.put(self.keys.tick, encode(Tick(k=k, ticks=plan.end_tick, plan_id=plan.plan_id,
+                                                           seq=self._next())))
+            faults = self.fleet.wait_tick(plan.ids, k, self.cfg.tick_timeout_s,
+                                          interrupt=lambda: self.watch.fault is not None)
+            self._check_vehicle()
+            if not faults:
+                with self.fleet.cv:
+                    off = [r for r in plan.ids if self.fleet.cells.get(r) != plan.cell(r, k)]
+                if off:
+                    faults = {"deviation": off}
+            if not faults:
+                back = self._rejoining()
+                if back:
+                    faults = {"rejoin": back}
+            if faults:
+                self._recover(k, faults)
+                next_at = time.monotonic()
+            done = sum(1 for r in plan.ids if self._done_for(r, plan))
+            self.progress.ticks(k, self.plan.end_tick, done, len(plan.ids))
+            if k % 10 == 0 or k == self.plan.end_tick:
                 self.transport.put(self.keys.mission_status, encode(MissionStatus(
-                    phase="executing", tick=k, ticks=ticks, done=done, robots=len(ids), seq=self._next())))
-        self.fleet.wait_until(lambda: set(ids) <= set(self.fleet.done), self.cfg.tick_timeout_s,
-                              lambda: f"robots {sorted(set(ids) - set(self.fleet.done))[:10]} never raised "
-                                      "their completion flag")
+                    phase="executing", tick=k, ticks=self.plan.end_tick, done=done, robots=len(self.ids),
+                    seq=self._next())))
+        self.ticks = self.tick
         self.clock.lap("execute")
+
+    def _done_for(self, robot: int, plan: PlanState) -> bool:
+        d = self.fleet.done.get(robot)
+        return d is not None and d.tick > plan.start_tick
+
+    def _rejoining(self) -> list[int]:
+        """Robots taken out of the plan that are back: alive, heard of since, no error."""
+        with self.fleet.cv:
+            return sorted(r for r in self.blocked if r in self.fleet.alive and r not in self.fleet.errors
+                          and self.fleet.heard.get(r, 0.0) > self.blocked_at.get(r, 0.0))
+
+    def _recover(self, k: int, faults: dict[str, list[int]]) -> None:
+        """Hold the fleet at tick k, look, take the robots that cannot move out of the plan, replan the rest."""
+        from .planning.registry import DEFAULT_PLANNER
+        from .recovery import replan
+
+        t = time.perf_counter()
+        self.replans += 1
+        faulty = set(faults.get("lost", [])) | set(faults.get("error", [])) | set(faults.get("stalled", []))
+        for kind, robots in faults.items():
+            if not robots:
+                continue
+            what = {"lost": "liveliness gone", "error": "reported status error",
+                    "stalled": f"no state for tick {k} within {self.cfg.tick_timeout_s:g} s",
+                    "deviation": "reported a cell off its plan", "rejoin": "back and reporting"}[kind]
+            self._event(f"robot-{kind}", robots, what, f"fleet held at tick {k}; fresh look; replan")
+        if self.replans > MAX_REPLANS:
+            raise MissionError(f"gave up after {MAX_REPLANS} replans (last: {', '.join(faults)})")
+        self._status("recover", message=f"tick {k}: {', '.join(f'{a} {b}' for a, b in faults.items())}")
+        # Hold at the tick boundary: the robots still working finish tick k before the look, so the
+        # image shows a settled floor (a lost robot is noticed while the others are mid-tick).
+        settling = [r for r in self.plan.ids if r not in faulty]
+        self.fleet.wait_tick(settling, k, self.cfg.tick_timeout_s, interrupt=lambda: self.watch.fault is not None)
+        seen = self._look()
+        with self.fleet.cv:
+            alive = set(self.fleet.alive)
+            reported = dict(self.fleet.cells)
+            self.fleet.errors.clear()
+        for r in faults.get("rejoin", []):
+            self.blocked.pop(r, None)
+            self.blocked_at.pop(r, None)
+        working: dict[int, Cell] = {}
+        for r in self.ids:
+            cell = seen.get(r) or reported.get(r) or self.blocked.get(r)
+            if r in faulty or r in self.blocked or r not in alive or r not in seen:
+                if cell is not None:
+                    self.blocked[r] = tuple(cell)
+                    if r not in self.blocked_at or r in faulty:
+                        self.blocked_at[r] = time.monotonic()
+            else:
+                working[r] = seen[r]
+        unseen = [r for r in self.ids if r not in seen]
+        if unseen:
+            self._event("unseen", unseen, "not seen by the fresh look", "kept out of the plan")
+        lost = sorted(set(self.ids) - alive)
+        t_look = time.perf_counter() - t
+        t = time.perf_counter()
+        rep = replan(self.model_free, list(self.model.goals), working, self.blocked,
+                     planner=self.cfg.planner or DEFAULT_PLANNER, connectivity=self.cfg.connectivity,
+                     time_limit=self.cfg.time_limit_s, seed=self.cfg.seed)
+        # A goal under a stopped robot that had reached it is served, not lost.
+        self.unserved = [tuple(g) for g in rep.unserved
+                         if not any(self.goal_of.get(r) == tuple(g) and c == tuple(g) for r, c in self.blocked.items())]
+        new = PlanState(secrets.token_hex(4), k, dict(zip(rep.ids, map(list, rep.result.paths))),
+                        dict(zip(rep.ids, rep.result.goals)))
+        self._event("replan", rep.ids, f"plan {new.plan_id} from tick {k} for {len(rep.ids)} robots "
+                                       f"({len(self.blocked)} out: {sorted(self.blocked)}, lost {lost}); "
+                                       f"{len(self.unserved)} goal(s) unserved",
+                    f"looked in {t_look:.2f} s, replanned in {time.perf_counter() - t:.3f} s")
+        self.clock.timings["recover_look"] = round(self.clock.timings.get("recover_look", 0.0) + t_look, 4)
+        failed = self._dispatch(new)
+        if failed:
+            self._recover(k, {"error": failed})
+
+    def _verify(self) -> None:
+        """Believe a Done only when an image taken after it shows the robot on its goal."""
+        plan = self.plan
+        deadline = time.monotonic() + DONE_WAIT_S
+        with self.fleet.cv:
+            while not all(self._done_for(r, plan) for r in plan.ids) and time.monotonic() < deadline:
+                self.fleet.cv.wait(0.1)
+            claimed = {r for r in self.ids if r in self.fleet.done}
+        self._status("verify", message=f"a fresh look at {len(plan.ids)} robots' goals")
+        seen = self.seen_at_end = self._look()
+        goals = {r: self.goal_of.get(r) for r in self.ids}
+        for r in self.ids:
+            g = goals[r]
+            self.verified[r] = g is not None and seen.get(r) == tuple(g)
+            if r in claimed and not self.verified[r] and r not in self._contradicted:
+                self._contradicted.add(r)
+                where = f"on {seen[r]}" if r in seen else "nowhere"
+                self._event("done-contradicted", [r], f"raised Done but the camera sees it {where}"
+                                                      + (f", not on its goal {tuple(g)}" if g else ""),
+                            "counted as not arrived; robot marked faulty")
+                cell = seen.get(r) or (plan.cell(r, self.tick) if r in plan.paths else None)
+                if cell is not None:
+                    self.blocked.setdefault(r, cell)
+                    self.blocked_at[r] = time.monotonic()
+            elif r in plan.ids and r not in claimed and self.verified[r]:
+                self._event("done-missing", [r], "on its goal but raised no Done", "counted as arrived (seen)")
+        self.clock.lap("verify")
+
+    def _outcome(self) -> str:
+        """completed: every robot seen on a goal; degraded: every working robot is, some were lost; else failed."""
+        if self.verified and all(self.verified.values()):
+            return "completed"
+        working = [r for r in self.ids if r not in self.blocked]
+        if working and all(self.verified.get(r) for r in working):
+            return "degraded"
+        return "failed"
+
+    def _reason(self) -> str:
+        outcome = self._outcome()
+        n, ok = len(self.ids), sum(self.verified.values())
+        if outcome == "completed":
+            return f"all {n} robots verified on their goals"
+        return f"{ok}/{n} robots verified on their goals; out of the plan: {sorted(self.blocked)}"
 
     def _end(self, completed: bool, reason: str) -> None:
         if self._ended:
@@ -317,6 +554,8 @@ class Mission:
                                                                     seq=self._next())))
 
     def _abort_landing(self) -> None:
+        if self.watch is not None:
+            self.watch.expect_airborne(False)
         if self.flight is None or not self.uav["armed"] or self.uav["landed"]:
             return
         try:
@@ -333,36 +572,84 @@ class Mission:
         self.uav["landed"] = True
         self.clock.lap("land")
 
-    def _finish_report(self, result, model) -> None:
-        from .planning.plan_io import plan_to_dict
+    def _record(self) -> Record | None:
+        try:
+            return _query(self.transport, self.keys.record, RecordRequest(seq=self._next()), Record, "record")
+        except MissionError:
+            return None
 
-        record = _query(self.transport, self.keys.record, RecordRequest(seq=self._next()), Record, "record")
-        plan = plan_to_dict(result, model.free, ids=self.ids)
+    def _cross_check(self, record: Record) -> None:
+        """The world's record against what the UAV believes: any disagreement is reported."""
+        seen = getattr(self, "seen_at_end", {})
+        for rid, cells in record.executed.items():
+            r = int(rid)
+            if cells and r in seen and tuple(cells[-1]) != tuple(seen[r]):
+                self._event("record-mismatch", [r], f"the world's record ends on {tuple(cells[-1])}, "
+                                                    f"the camera saw {tuple(seen[r])}")
+
+    def _fill_report(self, record: Record | None, outcome: str, reason: str) -> None:
         from protocol.mapfile import format_rows
 
+        from .planning.plan_io import plan_to_dict
+
+        ids = getattr(self, "ids", [])
+        model, result = self.model, self.first_result
         self.report.update({
-            "completed": set(self.ids) <= set(self.fleet.done) and record.collisions == 0,
-            "robots": len(self.ids),
-            "done": sorted(self.fleet.done),
-            "collisions": record.collisions,
-            "refused": record.refused,
-            "ticks": self.ticks,
-            "plan": plan,
-            "executed": record.executed,
-            "perceived": {"rows": format_rows(model.free),
-                          "robots": {str(i): list(c) for i, c in sorted(model.robots.items())},
-                          "goals": [list(g) for g in model.goals],
-                          "images": len(self.frames), "warnings": self.perception_warnings},
-            "truth": record.truth,
+            "completed": outcome == "completed" and record is not None and record.collisions == 0,
+            "outcome": outcome,
+            "reason": reason,
+            "robots": len(ids),
+            "done": sorted(self.fleet.done) if hasattr(self, "fleet") else [],
+            "verified": {str(r): self.verified.get(r, False) for r in ids},
+            "lost": sorted(self.blocked),
+            "unserved_goals": [list(g) for g in self.unserved],
+            "replans": self.replans,
+            "events": self.events.as_dicts(),
+            "collisions": record.collisions if record else None,
+            "refused": record.refused if record else [],
+            "ticks": self.tick,
+            "plan": plan_to_dict(result, model.free, ids=ids) if result is not None else None,
+            "executed": record.executed if record else {},
+            "perceived": None if model is None else {
+                "rows": format_rows(model.free), "robots": {str(i): list(c) for i, c in sorted(model.robots.items())},
+                "goals": [list(g) for g in model.goals], "images": len(self.frames),
+                "warnings": getattr(self, "perception_warnings", [])},
+            "truth": record.truth if record else None,
             "uav": self.uav,
             "timings": self.clock.timings,
             "processes": {"uav": os.getpid()},
             "fleet": self.cfg.fleet,
         })
+
+    def _finish_report(self) -> None:
+        record = self._record()
+        if record is not None:
+            self._cross_check(record)
+        outcome = self._outcome()
+        if record is not None and record.collisions:
+            outcome = "failed"
+        self._fill_report(record, outcome, self._reason())
         self.clock.lap("report")
         self.report["timings"] = self.clock.timings
         if self.cfg.out is not None:
-            write_outputs(self.cfg.out, self.report, self.frames, model.free, result, self.ids)
+            write_outputs(self.cfg.out, self.report, self.frames, self.model.free, self.first_result, self.ids)
+
+    def _abort_report(self, reason: str) -> None:
+        """An aborted mission still leaves its report: completed false, the reason, the events."""
+        try:
+            self._fill_report(self._record(), "aborted", reason)
+            if self.cfg.out is not None:
+                self.cfg.out.mkdir(parents=True, exist_ok=True)
+                (self.cfg.out / "report.json").write_text(json.dumps(self.report, indent=1))
+        except Exception as exc:  # noqa: BLE001 - the report must not hide the abort's own error
+            self.progress.phase("abort", f"could not write the report: {exc}")
+
+
+def exit_code(report: dict[str, Any]) -> int:
+    """0 every robot verified on its goal; 3 finished with a degraded fleet; 1 failed or aborted."""
+    if report.get("completed"):
+        return EXIT_COMPLETED
+    return EXIT_DEGRADED if report.get("outcome") == "degraded" else EXIT_ABORTED
 
 
 def write_outputs(out: Path, report: dict[str, Any], frames: list[CameraFrame], free, result,
@@ -382,13 +669,29 @@ def write_outputs(out: Path, report: dict[str, Any], frames: list[CameraFrame], 
 
 def summary(report: dict[str, Any], out: Path | None) -> str:
     """The few lines a person reads at the end of a mission."""
-    m = report["plan"]["metrics"]
     t = report["timings"]
+    verified = report.get("verified", {})
+    outcome = report.get("outcome", "completed" if report["completed"] else "failed").upper()
     lines = [
-        f"mission {'COMPLETED' if report['completed'] else 'FAILED'}: {len(report['done'])}/{report['robots']} robots "
-        f"at their goals in {report['ticks']} ticks, collisions {report['collisions']}",
-        f"  plan: {report['plan'].get('planner', '?')}, sum of costs {m['sum_of_costs']} "
-        f"(lower bound {m.get('lower_bound', '?')}), makespan {m['makespan']}",
+        f"mission {outcome}: {sum(verified.values())}/{report['robots']} robots verified on their goals by the "
+        f"camera in {report['ticks']} ticks, collisions {report['collisions']}",
+    ]
+    if report.get("plan"):
+        m = report["plan"]["metrics"]
+        lines.append(f"  plan: {report['plan'].get('planner', '?')}, sum of costs {m['sum_of_costs']} "
+                     f"(lower bound {m.get('lower_bound', '?')}), makespan {m['makespan']}")
+    events = report.get("events", [])
+    if events or report.get("replans"):
+        lines.append(f"  events: {len(events)}, replans {report.get('replans', 0)}, out of the plan "
+                     f"{report.get('lost', [])}, unserved goals {report.get('unserved_goals', [])}")
+        for e in events[:8]:
+            lines.append(f"    tick {e['tick']}: {e['kind']} {e['robots']} {e['what']}"
+                         + (f" -> {e['action']}" if e["action"] else ""))
+        if len(events) > 8:
+            lines.append(f"    ... {len(events) - 8} more in report.json")
+    if report.get("outcome") not in (None, "completed"):
+        lines.append(f"  reason: {report.get('reason', '')}")
+    lines += [
         f"  uav: armed {report['uav']['armed']}, max altitude {report['uav']['max_altitude_m']} m, "
         f"landed {report['uav']['landed']}",
         "  time: " + ", ".join(f"{k} {v:.2f}s" for k, v in t.items()),

@@ -26,6 +26,14 @@ def _add_run(sub) -> None:
                         "blur_sigma=1,lighting=0.3' (default 4000x3000, 90 deg, clean)")
     p.add_argument("--robots-per-process", type=int, default=None,
                    help="robots hosted per process (default: 1 up to 64 robots, then 4 pools)")
+    p.add_argument("--fault", action="append", default=[], metavar="SPEC",
+                   help="inject a fault (repeatable): crash:ROBOT@TICK (the robot dies at that tick), "
+                        "stall:ROBOT@TICK:TICKS (it stops moving and reporting that long), liar:ROBOT "
+                        "(it raises Done at its start and stops)")
+    p.add_argument("--tick-timeout", type=float, default=10.0, metavar="S",
+                   help="seconds a robot may take to report a tick before it counts as stalled (default 10)")
+    p.add_argument("--tick-rate", type=float, default=0.0, metavar="HZ",
+                   help="at most this many ticks per second (default 0: as fast as the fleet reports)")
     p.add_argument("--timeout", type=float, default=900.0, help="give up after this many seconds")
     p.set_defaults(func=lambda a: importlib.import_module("uav_robots.launcher").run(a))
 

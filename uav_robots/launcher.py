@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -18,9 +19,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from protocol.errors import MissionError
+from protocol.errors import MissionError, UavRobotsError
 from protocol.keys import new_fleet_name
 from protocol.process import die_with_parent
+from robot_agents.faults import parse_fault
 
 GRACE_S = 3.0
 
@@ -59,12 +61,9 @@ class Launcher:
         self.fleet = new_fleet_name()
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.udp = free_port(socket.SOCK_DGRAM)
-        self._tmp = None
-        if args.out:
-            self.out = Path(args.out).resolve()
-        else:
-            self._tmp = tempfile.TemporaryDirectory(prefix="uav-robots-")
-            self.out = Path(self._tmp.name)
+        # Without --out the outputs are temporary, unless the run fails: then they are what the user needs.
+        self.temporary = not args.out
+        self.out = Path(args.out).resolve() if args.out else Path(tempfile.mkdtemp(prefix="uav-robots-"))
         self.logs = self.out / "logs"
         self.logs.mkdir(parents=True, exist_ok=True)
 
@@ -88,6 +87,7 @@ class Launcher:
                                   *(["--assign", a.assign] if a.assign else []),
                                   "--connectivity", str(a.connectivity),
                                   "--time-limit", str(a.time_limit), "--seed", str(a.seed),
+                                  "--tick-rate", str(a.tick_rate), "--tick-timeout", str(a.tick_timeout),
                                   *(["--planner", a.planner] if a.planner else []),
                                   *(["--no-fallback"] if a.no_fallback else [])], to_log=False)
         self._spawn("world", "sim_world", [*common, "--connect", self.endpoint, "--map", a.map,
@@ -96,21 +96,31 @@ class Launcher:
                               "--mavlink", f"udpout:127.0.0.1:{self.udp}", "--time-scale", str(a.time_scale),
                               *(["--camera", a.camera] if a.camera else [])],
                     to_log=True)
+        faults = [parse_fault(f) for f in a.fault]
         for group in robot_groups(a.robots, a.robots_per_process):
             ids = f"{group[0]}-{group[-1]}"
+            mine = [arg for f in faults if f.robot in group for arg in ("--fault", str(f))]
             self._spawn(f"robots-{ids}", "robot_agents", [*common, "--connect", self.endpoint, "--ids", ids,
-                                          "--connectivity", str(a.connectivity)], to_log=True)
+                                          "--connectivity", str(a.connectivity), *mine], to_log=True)
         return uav
 
     def watch(self, uav: Child, timeout_s: float) -> int:
+        """Wait for the UAV: it owns the mission's outcome. Other processes dying is the UAV's to
+        handle (a lost robot is replanned around); the launcher only says so. The world dying leaves
+        the UAV blind, so it is told to stop, which lands its vehicle."""
         deadline = time.monotonic() + timeout_s
+        said: set[str] = set()
         while True:
             code = uav.proc.poll()
             if code is not None:
                 return code
             for c in self.children:
-                if c is not uav and c.proc.poll() not in (None, 0):
-                    raise MissionError(f"{c.name} process exited with code {c.proc.returncode}: {c.tail()}")
+                if c is not uav and c.name not in said and c.proc.poll() not in (None, 0):
+                    said.add(c.name)
+                    print(f"uav-robots: {c.name} process exited with code {c.proc.returncode}: {c.tail()}",
+                          file=sys.stderr, flush=True)
+                    if c.name == "world":
+                        uav.proc.send_signal(signal.SIGTERM)
             if time.monotonic() > deadline:
                 raise MissionError(f"mission did not finish within {timeout_s:g} s")
             time.sleep(0.05)
@@ -144,6 +154,15 @@ def run(args) -> int:
 
     name, free = resolve_map(args.map, args.seed)
     place(free, args.robots, args.seed)
+    from sim_world.world import MOVE_BATCH_TIMEOUT_S
+    if not args.tick_timeout > MOVE_BATCH_TIMEOUT_S:
+        # Everyone waits for the world's batch when one robot is silent: a shorter deadline would call
+        # the whole fleet stalled.
+        raise UavRobotsError(f"--tick-timeout must exceed the world's move batch timeout "
+                             f"({MOVE_BATCH_TIMEOUT_S:g} s), got {args.tick_timeout:g}")
+    for f in map(parse_fault, args.fault):
+        if f.robot >= args.robots:
+            raise UavRobotsError(f"--fault {f}: there is no robot {f.robot} in a fleet of {args.robots}")
     if args.planner:
         from uav_agent.planning.registry import get_planner
 
@@ -163,19 +182,23 @@ def run(args) -> int:
         print(f"error: {exc}", file=sys.stderr, flush=True)
         code = 1
     finally:
-        launcher.stop(graceful=code == 0)
+        # The UAV has exited (its abort landing included) unless interrupted or timed out.
+        launcher.stop(graceful=code in (0, 1, 3))
     report_path = launcher.out / "report.json"
-    if code == 0 and report_path.exists():
+    kept = not launcher.temporary or code != 0
+    if report_path.exists():
         report = json.loads(report_path.read_text())
         report["processes"] = launcher.pids()
-        report["timings"]["wall_total"] = round(time.perf_counter() - t0, 3)
+        report.setdefault("timings", {})["wall_total"] = round(time.perf_counter() - t0, 3)
         report_path.write_text(json.dumps(report, indent=1))
         # The UAV printed the mission's summary; the launcher adds what only it knows.
         print(f"  whole run: {report['timings']['wall_total']:.2f}s wall (process start-up and shut-down "
               f"included), {len(report['processes']['robots'])} robot process(es)"
-              + ("" if args.out else "; outputs were temporary: keep them with --out DIR"), flush=True)
-        code = 0 if report["completed"] else 1
-    elif code not in (0, 130):
-        print(f"error: the mission failed (exit {code}); logs in {launcher.logs}", file=sys.stderr, flush=True)
-        code = 1
-    return code
+              + ("" if kept else "; outputs were temporary: keep them with --out DIR"), flush=True)
+    if code not in (0, 130):
+        where = launcher.out if kept else launcher.logs
+        print(f"uav-robots: the mission did not complete (exit {code}); report and logs in {where}",
+              file=sys.stderr, flush=True)
+    if not kept:
+        shutil.rmtree(launcher.out, ignore_errors=True)
+    return code if code in (0, 1, 3, 130) else 1

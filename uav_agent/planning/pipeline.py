@@ -75,8 +75,9 @@ def _check_input(free, starts, goals, planner, assign, connectivity, time_limit)
     goals = _check_cells(free, goals, "goal")
     if not starts:
         raise PlanningError("no robots to plan for")
-    if len(starts) != len(goals):
-        raise PlanningError(f"{len(starts)} robots but {len(goals)} goals: the counts must match")
+    if len(goals) < len(starts) or (len(goals) != len(starts) and assign == "none"):
+        raise PlanningError(f"{len(starts)} robots but {len(goals)} goals: " + (
+            "every robot needs its own goal" if len(goals) < len(starts) else "with --assign none the counts must match"))
     return free, starts, goals
 
 

@@ -1,0 +1,201 @@
+"""The UAV closes the loop: real missions with real faults, the world's record checked every time.
+
+Each test runs `uav-robots run` as a user would, hurts it (signals to robot processes,
+`--fault`, a forger on the network), and checks the report against the world's record.
+"""
+from __future__ import annotations
+
+import json
+import os
+import queue
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import psutil
+import pytest
+
+from protocol.config import client_config
+from protocol.keys import Keys
+from protocol.messages import Done, encode
+from protocol.transport import ZenohTransport
+
+CLI = [sys.executable, "-m", "uav_robots", "run"]
+
+
+class Run:
+    """A `uav-robots run` whose output lines can be waited for while it runs."""
+
+    def __init__(self, out: Path, *args: str) -> None:
+        self.out = out
+        self.proc = subprocess.Popen([*CLI, "--out", str(out), *args], stdout=subprocess.PIPE,
+                                     stderr=subprocess.STDOUT, text=True, stdin=subprocess.DEVNULL)
+        self.lines: list[str] = []
+        self._q: queue.Queue[str | None] = queue.Queue()
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.append(line)
+            self._q.put(line)
+        self._q.put(None)
+
+    def wait_for(self, pattern: str, timeout: float = 120.0) -> re.Match:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                line = self._q.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                break
+            if line is None:
+                break
+            m = re.search(pattern, line)
+            if m:
+                return m
+        pytest.fail(f"no line matching {pattern!r}; output:\n{''.join(self.lines)[-4000:]}")
+
+    def robot_process(self, robot: int) -> psutil.Process:
+        for child in psutil.Process(self.proc.pid).children(recursive=True):
+            try:
+                cmd = child.cmdline()
+            except psutil.Error:
+                continue
+            if "robot_agents" in cmd and f"{robot}-{robot}" in cmd:
+                return child
+        raise AssertionError(f"no process hosts robot {robot}")
+
+    def finish(self, timeout: float = 240.0) -> tuple[int, dict]:
+        try:
+            code = self.proc.wait(timeout=timeout)
+        finally:
+            if self.proc.poll() is None:
+                self.proc.kill()
+                self.proc.wait(10)
+        report_path = self.out / "report.json"
+        assert report_path.exists(), "".join(self.lines)[-4000:]
+        return code, json.loads(report_path.read_text())
+
+
+def _check_truth(report: dict, lost: set[int]) -> None:
+    """Every robot the UAV calls verified stands on its goal in the world's own record; no collision."""
+    assert report["collisions"] == 0, report["refused"][:5]
+    goals = {tuple(g) for g in report["truth"]["goals"]}
+    for rid, ok in report["verified"].items():
+        final = tuple(report["executed"][rid][-1])
+        if ok:
+            assert final in goals, (rid, final)
+        elif int(rid) not in lost:
+            pytest.fail(f"robot {rid} is neither verified nor out of the plan: {report['events']}")
+
+
+def _kinds(report: dict) -> dict[str, list[int]]:
+    out: dict[str, list[int]] = {}
+    for e in report["events"]:
+        out.setdefault(e["kind"], []).extend(e["robots"])
+    return out
+
+
+def test_sigkill_one_robot_mid_execution(tmp_path):
+    run = Run(tmp_path / "out", "--robots", "20", "--tick-rate", "10")
+    run.wait_for(r"tick 3/\d+")
+    victim = run.robot_process(5)
+    killed_at = time.time()
+    victim.send_signal(signal.SIGKILL)
+    code, report = run.finish()
+    lost = [e for e in report["events"] if e["kind"] == "robot-lost"]
+    assert lost and lost[0]["robots"] == [5], report["events"]
+    assert lost[0]["unix"] - killed_at < 1.0, "the lost robot was noticed more than 1 s after it died"
+    assert report["replans"] >= 1 and 5 in report["lost"]
+    assert all(ok for rid, ok in report["verified"].items() if rid != "5"), report["verified"]
+    _check_truth(report, {5})
+    assert code == (0 if report["verified"]["5"] else 3)
+    assert report["outcome"] == ("completed" if code == 0 else "degraded")
+
+
+def test_sigstop_a_robot_for_3_s(tmp_path):
+    run = Run(tmp_path / "out", "--robots", "12", "--tick-rate", "4")
+    run.wait_for(r"tick 2/\d+")
+    victim = run.robot_process(4)
+    victim.send_signal(signal.SIGSTOP)
+    time.sleep(3.0)
+    victim.send_signal(signal.SIGCONT)
+    code, report = run.finish()
+    assert code == 0, "".join(run.lines)[-3000:]
+    assert report["completed"] and all(report["verified"].values())
+    _check_truth(report, set())
+
+
+def test_a_robot_that_claims_done_and_never_moves_is_not_believed(tmp_path):
+    run = Run(tmp_path / "out", "--robots", "8", "--fault", "liar:2", "--tick-timeout", "4")
+    code, report = run.finish()
+    assert code == 3 and report["outcome"] == "degraded"
+    assert report["verified"]["2"] is False and 2 in report["lost"]
+    assert 2 in _kinds(report).get("robot-stalled", [])
+    assert all(ok for rid, ok in report["verified"].items() if rid != "2")
+    _check_truth(report, {2})
+    assert any("mission DEGRADED" in line for line in run.lines)
+
+
+def test_a_forged_done_changes_nothing(tmp_path):
+    # Robot 1 stops for good at tick 1; a stranger raises Done for it on its own key, again and again.
+    run = Run(tmp_path / "out", "--robots", "8", "--fault", "stall:1@1:100000", "--tick-timeout", "4")
+    m = run.wait_for(r"fleet (\w+), zenoh (\S+),")
+    fleet, endpoint = m.group(1), m.group(2)
+    stop = threading.Event()
+
+    def forge() -> None:
+        keys = Keys(fleet)
+        with ZenohTransport(client_config([endpoint]), "forger") as t:
+            while not stop.wait(0.2):
+                t.put(keys.done(1), encode(Done(robot=1, tick=1000, cell=(0, 0), seq=1)))
+
+    forger = threading.Thread(target=forge, daemon=True)
+    forger.start()
+    try:
+        code, report = run.finish()
+    finally:
+        stop.set()
+        forger.join(10)
+    assert code == 3
+    assert report["verified"]["1"] is False
+    assert all(ok for rid, ok in report["verified"].items() if rid != "1")
+    _check_truth(report, {1})
+
+
+def test_a_crashing_robot_by_fault_is_replanned_around(tmp_path):
+    run = Run(tmp_path / "out", "--robots", "12", "--fault", "crash:3@2", "--robots-per-process", "4")
+    code, report = run.finish()
+    assert code in (0, 3)
+    assert _kinds(report)["robot-lost"] == [3]
+    assert all(ok for rid, ok in report["verified"].items() if rid != "3")
+    _check_truth(report, {3})
+
+
+def test_an_aborted_run_still_writes_its_report(tmp_path):
+    # Every robot stalls from tick 1 for good: nobody is left to plan for, the mission aborts.
+    faults = [a for r in range(3) for a in ("--fault", f"stall:{r}@1:100000")]
+    run = Run(tmp_path / "out", "--robots", "3", "--tick-timeout", "3", *faults)
+    code, report = run.finish()
+    assert code == 1
+    assert report["completed"] is False and report["outcome"] == "aborted"
+    assert "no robot is left working" in report["reason"]
+    assert report["uav"]["landed"] is True, "the abort landing must complete before the run ends"
+    assert (tmp_path / "out" / "logs").is_dir()
+    assert any("report and logs in" in line and str(tmp_path / "out") in line for line in run.lines)
+
+
+@pytest.mark.slow
+def test_crash_and_stall_on_the_papers_setting(tmp_path):
+    run = Run(tmp_path / "out", "--map", "warehouse-450", "--robots", "50",
+              "--fault", "crash:7@30", "--fault", "stall:12@50:20")
+    code, report = run.finish(timeout=400)
+    assert code in (0, 3), "".join(run.lines)[-3000:]
+    kinds = _kinds(report)
+    assert kinds["robot-lost"] == [7] and 12 in kinds["robot-stalled"]
+    assert all(ok for rid, ok in report["verified"].items() if rid not in ("7", "12"))
+    _check_truth(report, {7, 12})
