@@ -1,0 +1,206 @@
+"""The airframe: where the vehicle is, how it moves toward what the autopilot asks, and
+whether it stands on the ground.
+
+The physics is kinematic: the vehicle moves straight toward its target with its
+horizontal speed and climb limits; there is no attitude dynamics (the camera is
+treated as gimballed, so roll and pitch are reported as zero). `time_scale`
+simulated seconds pass per wall second, so a demo need not wait for real flight.
+
+Frames: local NED with the origin at home (the warehouse grid's top-left corner, at
+ground level; see protocol/geo.py). Altitude is positive up from home; `down` is
+its negative.
+"""
+from __future__ import annotations
+
+import enum
+import math
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable, NamedTuple, Protocol
+
+from .journal import Journal
+
+Vec3 = tuple[float, float, float]
+
+GROUND_EPS_M = 0.01  # at or below this altitude the vehicle touches the ground
+LIFTOFF_ALT_M = 0.1  # above this altitude the land detector calls it airborne
+YAW_RATE_RAD_S = math.radians(90.0)
+GRAVITY_M_S2 = 9.81
+TERMINAL_SPEED_M_S = 20.0
+PHYSICS_PERIOD_S = 0.02  # wall time between steps
+
+
+def step_toward(pos: Vec3, target: Vec3, speed_xy: float, speed_up: float, speed_down: float, dt: float) -> Vec3:
+    """Move `pos` toward `target` (NED) for `dt` s, capping horizontal and vertical speed
+    separately, without overshooting. Returns the new position."""
+    dn, de, dd = target[0] - pos[0], target[1] - pos[1], target[2] - pos[2]
+    dist_xy = math.hypot(dn, de)
+    reach = speed_xy * dt
+    if dist_xy > reach > 0:
+        dn, de = dn * reach / dist_xy, de * reach / dist_xy
+    elif reach <= 0:
+        dn = de = 0.0
+    # down is positive: dd < 0 climbs
+    dd = max(-speed_up * dt, min(speed_down * dt, dd))
+    return pos[0] + dn, pos[1] + de, pos[2] + dd
+
+
+def step_yaw(yaw: float, target: float, rate: float, dt: float) -> float:
+    """Turn from `yaw` toward `target` (radians) at most `rate * dt`, the short way round."""
+    diff = (target - yaw + math.pi) % (2 * math.pi) - math.pi
+    diff = max(-rate * dt, min(rate * dt, diff))
+    return (yaw + diff + math.pi) % (2 * math.pi) - math.pi
+
+
+@dataclass(frozen=True)
+class Setpoint:
+    """Where the autopilot wants the airframe for one step, and how fast it may go there."""
+
+    target: Vec3  # NED, within the ceiling
+    yaw: float
+    speed_xy: float
+    speed_up: float
+    speed_down: float
+
+
+class Contact(enum.Enum):
+    """A change the land detector saw in one step; the value is what the journal records."""
+
+    LIFTOFF = "liftoff"
+    TOUCHDOWN = "landed"
+
+
+class State(NamedTuple):
+    """One consistent reading of the airframe (NED metres, m/s, radians)."""
+
+    pos: Vec3
+    vel: Vec3
+    yaw: float
+
+
+class Pilot(Protocol):
+    """What flies the airframe; asked under the lock, at every physics step."""
+
+    def setpoint(self, dt: float, wall_now: float) -> Setpoint | None:
+        """Where to go this step; None with the motors off (the airframe falls)."""
+
+    def on_moved(self, setpoint: Setpoint) -> None:
+        """The airframe has flown toward `setpoint` (before the land detector looks)."""
+
+    def on_contact(self, contact: Contact | None) -> None:
+        """The land detector's verdict for this step, None if nothing changed."""
+
+
+class Dynamics:
+    """The airframe's state and its physics step. `ceiling()` is the highest altitude it
+    may reach (a parameter, so it is asked at every use)."""
+
+    def __init__(self, lock: threading.RLock, journal: Journal, ceiling: Callable[[], float]):
+        self._lock = lock
+        self._journal = journal
+        self._ceiling = ceiling
+        self._pos: Vec3 = (0.0, 0.0, 0.0)
+        self._vel: Vec3 = (0.0, 0.0, 0.0)
+        self._yaw = 0.0
+        self._sim_time = 0.0
+        self._airborne = False
+        self._max_alt = 0.0
+
+    # --- readings ----------------------------------------------------------------------
+
+    def state(self) -> State:
+        with self._lock:
+            return State(self._pos, self._vel, self._yaw)
+
+    def pose(self) -> tuple[float, float, float, float]:
+        """(north, east, down, yaw_rad) in the local NED frame."""
+        with self._lock:
+            return (*self._pos, self._yaw)
+
+    @property
+    def position(self) -> Vec3:
+        with self._lock:
+            return self._pos
+
+    @property
+    def altitude(self) -> float:
+        with self._lock:
+            return -self._pos[2]
+
+    @property
+    def airborne(self) -> bool:
+        with self._lock:
+            return self._airborne
+
+    @property
+    def sim_time(self) -> float:
+        with self._lock:
+            return self._sim_time
+
+    @property
+    def max_altitude(self) -> float:
+        with self._lock:
+            return self._max_alt
+
+    @property
+    def ceiling(self) -> float:
+        return self._ceiling()
+
+    def clamp_down(self, down: float) -> float:
+        """`down` kept between the ground and the ceiling."""
+        return min(0.0, max(-self._ceiling(), down))
+
+    # --- the physics -------------------------------------------------------------------
+
+    def run(self, stop: threading.Event, time_scale: float, pilot: Pilot) -> None:
+        """Step every PHYSICS_PERIOD_S of wall time until `stop`."""
+        last = time.monotonic()
+        while not stop.wait(PHYSICS_PERIOD_S):
+            now = time.monotonic()
+            try:
+                self.step((now - last) * time_scale, now, pilot)
+            except Exception as exc:  # never let the sky fall because of a bug in one step
+                self._journal.warn(f"physics step failed: {type(exc).__name__}: {exc}")
+            last = now
+
+    def step(self, dt: float, wall_now: float, pilot: Pilot) -> None:
+        """Advance `dt` simulated seconds; `wall_now` is for the pilot's link timeouts."""
+        with self._lock:
+            prev = self._pos
+            self._sim_time += dt
+            setpoint = pilot.setpoint(dt, wall_now)
+            if setpoint is None:
+                self._fall(dt)
+            else:
+                self._pos = step_toward(self._pos, setpoint.target, setpoint.speed_xy, setpoint.speed_up,
+                                        setpoint.speed_down, dt)
+                self._yaw = step_yaw(self._yaw, setpoint.yaw, YAW_RATE_RAD_S, dt)
+                pilot.on_moved(setpoint)
+            n, e, d = self._pos
+            self._pos = (n, e, self.clamp_down(d))
+            self._vel = tuple((a - b) / dt for a, b in zip(self._pos, prev)) if dt > 0 else (0.0, 0.0, 0.0)
+            pilot.on_contact(self._detect_contact())
+            self._max_alt = max(self._max_alt, -self._pos[2])
+
+    def _fall(self, dt: float) -> None:
+        if -self._pos[2] <= GROUND_EPS_M:
+            self._pos = (self._pos[0], self._pos[1], 0.0)
+            return
+        vz = min(TERMINAL_SPEED_M_S, self._vel[2] + GRAVITY_M_S2 * dt)
+        self._pos = (self._pos[0], self._pos[1], min(0.0, self._pos[2] + vz * dt))
+        if self._pos[2] >= 0.0:
+            self._journal.event(f"hit the ground at {vz:.1f} m/s")
+
+    def _detect_contact(self) -> Contact | None:
+        """PX4-like land detector: airborne above LIFTOFF_ALT_M, landed on touching the ground."""
+        alt = -self._pos[2]
+        if not self._airborne and alt > LIFTOFF_ALT_M:
+            contact = Contact.LIFTOFF
+        elif self._airborne and alt <= GROUND_EPS_M:
+            contact = Contact.TOUCHDOWN
+        else:
+            return None
+        self._airborne = contact is Contact.LIFTOFF
+        self._journal.event(contact.value)
+        return contact

@@ -1,0 +1,101 @@
+"""The vehicle's parameters and MAVLink's parameter protocol (read, list, set)."""
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass
+from typing import Callable
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from .config import VehicleConfig
+from .journal import Journal
+from .link import Link
+
+
+@dataclass
+class _Param:
+    value: float
+    low: float
+    high: float
+
+
+class Params:
+    """PX4-named parameters, all REAL32, in a fixed order (their protocol index)."""
+
+    def __init__(self, config: VehicleConfig, lock: threading.RLock, journal: Journal, link: Link):
+        self._lock = lock
+        self._journal = journal
+        self._link = link
+        cfg = config
+        self._params: dict[str, _Param] = {
+            "MIS_TAKEOFF_ALT": _Param(cfg.takeoff_alt_m, 0.5, cfg.max_alt_m),
+            "MPC_XY_VEL_MAX": _Param(cfg.max_speed_m_s, 0.1, 100.0),
+            "MPC_Z_VEL_MAX_UP": _Param(cfg.max_climb_m_s, 0.1, 50.0),
+            "MPC_Z_VEL_MAX_DN": _Param(cfg.max_climb_m_s, 0.1, 50.0),
+            "MPC_LAND_SPEED": _Param(cfg.land_speed_m_s, 0.1, 50.0),
+            "COM_DISARM_LAND": _Param(cfg.disarm_after_land_s, 0.0, 60.0),
+            "LNDMC_ALT_MAX": _Param(cfg.max_alt_m, 1.0, 10000.0),
+        }
+        self._watchers: dict[str, list[Callable[[float], None]]] = {}
+
+    def get(self, name: str) -> float:
+        with self._lock:
+            return self._params[name].value
+
+    def set(self, name: str, value: float, *, clamp_low: bool = True) -> None:
+        """Store `value` within the parameter's range (capped only from above unless
+        `clamp_low`), then tell its watchers, all under the lock."""
+        param = self._params[name]
+        with self._lock:
+            param.value = min(param.high, max(param.low, value) if clamp_low else value)
+            for watcher in self._watchers.get(name, ()):
+                watcher(param.value)
+
+    def watch(self, name: str, callback: Callable[[float], None]) -> None:
+        """Call `callback(new value)` under the lock whenever `name` is set."""
+        self._watchers.setdefault(name, []).append(callback)
+
+    # --- the protocol ------------------------------------------------------------------
+
+    def on_request_read(self, msg) -> None:
+        self._read(_text(msg.param_id), msg.param_index)
+
+    def on_request_list(self, msg) -> None:
+        for index in range(len(self._params)):
+            self._read("", index)
+
+    def on_set(self, msg) -> None:
+        name, value = _text(msg.param_id), msg.param_value
+        if name not in self._params:
+            self._journal.warn(f"unknown parameter {name!r} set")
+            return
+        if not math.isfinite(value):
+            self._journal.warn(f"non-finite value for parameter {name!r} ignored")
+        else:
+            self.set(name, float(value))
+        self._send(name)  # the echo tells the client what was actually stored
+
+    def _read(self, name: str, index: int) -> None:
+        names = list(self._params)
+        if index >= 0:
+            if index >= len(names):
+                return
+            name = names[index]
+        elif name not in self._params:
+            self._journal.warn(f"unknown parameter {name!r} requested")
+            return  # like PX4: no answer for a parameter it does not have
+        self._send(name)
+
+    def _send(self, name: str) -> None:
+        names = list(self._params)
+        value = self.get(name)
+        self._link.send(self._link.encoder.param_value_encode(name.encode(), value, mavlink.MAV_PARAM_TYPE_REAL32,
+                                                              len(names), names.index(name)))
+
+
+def _text(value) -> str:
+    """A MAVLink char[] field as str, without NUL padding."""
+    if isinstance(value, (bytes, bytearray)):
+        value = value.decode("ascii", "replace")
+    return value.split("\0", 1)[0]

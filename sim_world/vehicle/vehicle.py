@@ -1,0 +1,122 @@
+"""The `Vehicle` facade: builds the parts, wires them together and runs their threads."""
+from __future__ import annotations
+
+import threading
+import time
+
+from protocol.errors import MissionError
+
+from .autopilot import Autopilot
+from .commands import Commands
+from .config import VehicleConfig
+from .dynamics import Dynamics
+from .journal import Journal
+from .link import Link
+from .modes import LandedState, Mode
+from .offboard import Offboard
+from .params import Params
+from .telemetry import Telemetry
+
+
+class Vehicle:
+    """The simulated autopilot. `start()` opens the link and runs its threads; `stop()`
+    ends them. All public accessors are thread-safe."""
+
+    def __init__(self, config: VehicleConfig | None = None):
+        self.config = cfg = config or VehicleConfig()
+        # One lock for all the parts' state: a command, a physics step or a telemetry
+        # message sees every part at the same instant. Re-entrant, since parts call each
+        # other while holding it.
+        self._lock = threading.RLock()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        # Events carry simulated time, which the airframe (built next, and logging to the
+        # journal) keeps.
+        self._journal = Journal(self._lock, sim_time=lambda: self._dynamics.sim_time)
+        self._link = Link(cfg, self._lock, self._journal)
+        self._params = Params(cfg, self._lock, self._journal, self._link)
+        self._dynamics = Dynamics(self._lock, self._journal, ceiling=lambda: self._params.get("LNDMC_ALT_MAX"))
+        self._offboard = Offboard(self._lock, self._journal, self._link, self._dynamics)
+        self._autopilot = Autopilot(self._lock, self._journal, self._dynamics, self._params, self._offboard,
+                                    cruise_speed_m_s=cfg.max_speed_m_s)
+        self._telemetry = Telemetry(cfg, self._lock, self._journal, self._link, self._dynamics, self._autopilot)
+        self._commands = Commands(cfg, self._link, self._autopilot, self._telemetry, self._params, self._offboard)
+
+    # --- lifecycle -------------------------------------------------------------------
+
+    def start(self) -> "Vehicle":
+        """Open the MAVLink link and start the receive, physics and telemetry threads."""
+        if self._threads:
+            raise MissionError("vehicle already started")
+        self._link.open()
+        self._stop.clear()
+        self._telemetry.restart_clock()
+        self._journal.event("booted")
+        loops = (("recv", self._link.run, (self._stop, self._commands.handle, self._telemetry.heartbeat)),
+                 ("physics", self._dynamics.run, (self._stop, self.config.time_scale, self._autopilot)),
+                 ("telemetry", self._telemetry.run, (self._stop,)))
+        for name, target, args in loops:
+            thread = threading.Thread(target=target, args=args, name=f"vehicle-{name}", daemon=True)
+            thread.start()
+            self._threads.append(thread)
+        return self
+
+    def stop(self) -> None:
+        """Stop the threads (joined within 2 s) and close the link. Idempotent."""
+        self._stop.set()
+        deadline = time.monotonic() + 2.0
+        for thread in self._threads:
+            thread.join(max(0.0, deadline - time.monotonic()))
+        self._threads = []
+        self._link.close()
+
+    def __enter__(self) -> "Vehicle":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    # --- public state ----------------------------------------------------------------
+
+    def pose(self) -> tuple[float, float, float, float]:
+        """(north, east, down, yaw_rad) in the local NED frame."""
+        return self._dynamics.pose()
+
+    @property
+    def armed(self) -> bool:
+        return self._autopilot.armed
+
+    @property
+    def landed_state(self) -> LandedState:
+        return self._autopilot.landed_state
+
+    @property
+    def in_air(self) -> bool:
+        return self.landed_state != LandedState.ON_GROUND
+
+    @property
+    def mode(self) -> Mode:
+        return self._autopilot.mode
+
+    @property
+    def bad_frames(self) -> int:
+        """Datagrams or frames received that were not valid MAVLink, or that broke a handler."""
+        return self._link.bad_frames
+
+    @property
+    def max_altitude_m(self) -> float:
+        return self._dynamics.max_altitude
+
+    @property
+    def sim_time_s(self) -> float:
+        return self._dynamics.sim_time
+
+    @property
+    def events(self) -> list[tuple[float, str]]:
+        """(simulated time in s, text) of notable events: armed, takeoff, landed, ..."""
+        return self._journal.events
+
+    @property
+    def local_address(self) -> tuple[str, int] | None:
+        """The (host, port) the vehicle's UDP socket is bound to, once started."""
+        return self._link.local_address
