@@ -199,3 +199,38 @@ def test_crash_and_stall_on_the_papers_setting(tmp_path):
     assert kinds["robot-lost"] == [7] and 12 in kinds["robot-stalled"]
     assert all(ok for rid, ok in report["verified"].items() if rid not in ("7", "12"))
     _check_truth(report, {7, 12})
+
+
+def _vehicle_port(run: Run) -> int:
+    for child in psutil.Process(run.proc.pid).children(recursive=True):
+        if "sim_world" in child.cmdline():
+            ports = [c.laddr.port for c in child.net_connections(kind="udp")]
+            assert len(ports) == 1, ports
+            return ports[0]
+    raise AssertionError("no world process")
+
+
+@pytest.mark.parametrize("command, words", [
+    ("disarm", "disarmed by someone else"),
+    ("land", "LAND mode"),
+])
+def test_a_second_ground_station_takes_the_vehicle(tmp_path, command, words):
+    from pymavlink import mavutil
+
+    run = Run(tmp_path / "out", "--robots", "6", "--tick-rate", "4")
+    run.wait_for(r"tick 2/\d+")
+    gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{_vehicle_port(run)}", source_system=250)
+    try:
+        m = gcs.mav
+        if command == "disarm":   # forced: a multicopter in the air refuses a plain disarm
+            m.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 21196, 0, 0, 0, 0, 0)
+        else:
+            m.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, 0, 0, 0, 0, 0)
+        code, report = run.finish()
+    finally:
+        gcs.close()
+    assert code == 1, "".join(run.lines)[-3000:]
+    assert report["completed"] is False and report["outcome"] == "aborted"
+    assert words in report["reason"]
+    assert any(e["kind"] == "vehicle" and words in e["what"] for e in report["events"])
+    assert not any("COMPLETED" in line for line in run.lines)
