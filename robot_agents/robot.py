@@ -74,7 +74,11 @@ class RobotMachine:
         if problem:
             return self._ack(pid, False, problem)
         start = (int(plan.path[0][0]), int(plan.path[0][1]))
-        if self.cell is not None and start != self.cell:
+        if plan.start_tick > 0:
+            # A repair plan: the UAV has just seen the floor, and a robot can be wrong about where it
+            # is (a wheel slipped). Its camera, not the robot's odometry, says where the robot stands.
+            self.cell = start
+        elif self.cell is not None and start != self.cell:
             return self._ack(pid, False, f"plan starts at {start} but robot {self.robot_id} is at {self.cell}")
         if self.state == STEPPING and self.cell is None:
             return self._ack(pid, False, f"busy stepping plan {self.plan.plan_id if self.plan else ''}")

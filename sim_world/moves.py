@@ -43,6 +43,9 @@ class MoveJudge:
     record: dict[int, list[Cell]] = field(default_factory=dict)
     collisions: int = 0
     refused: list[Refusal] = field(default_factory=list)
+    skid_prob: float = 0.0        # `--fault slip:P`: a move ends elsewhere, and the robot is not told
+    seed: int = 0
+    skids: list[dict[str, Any]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         if self.connectivity not in (4, 8):
@@ -57,6 +60,9 @@ class MoveJudge:
             seen[c] = r
         if not self.record:
             self.record = {r: [c] for r, c in self.positions.items()}
+        if not 0.0 <= self.skid_prob <= 1.0:
+            raise UavRobotsError(f"slip probability must be in [0, 1], got {self.skid_prob}")
+        self._rng = np.random.default_rng(self.seed)
 
     # ----------------------------------------------------------- geometry
     def _on_free(self, c: Cell) -> bool:
@@ -102,11 +108,13 @@ class MoveJudge:
         pos = self.positions
         target: dict[int, Cell] = {}
         why: dict[int, str] = {}
+        lost: set[int] = set()
         for r, (frm, to) in requests.items():
             if r not in pos:
                 continue
             frm, to = (int(frm[0]), int(frm[1])), (int(to[0]), int(to[1]))
             if frm != pos[r]:
+                lost.add(r)   # the robot is wrong about where it is: no motion happens, nobody is hit
                 why[r] = f"robot {r} is at {pos[r]}, not at {frm}"
             elif to != frm:
                 problem = self._step_problem(frm, to)
@@ -120,14 +128,16 @@ class MoveJudge:
             if r not in pos:
                 continue
             if r in why:
-                self.collisions += 1
-                self.refused.append(Refusal(tick, r, tuple(frm), tuple(to), why[r], True))
+                self.collisions += r not in lost
+                self.refused.append(Refusal(tick, r, tuple(frm), tuple(to), why[r], r not in lost))
                 out[r] = MoveResult(r, tick, False, pos[r], why[r])
-        for r, to in target.items():
+        actual = self._skid(tick, target) if self.skid_prob else target
+        for r, to in actual.items():
             pos[r] = to
         for r, (frm, to) in requests.items():
             if r in pos and r not in why:
-                out[r] = MoveResult(r, tick, True, pos[r])
+                # After a skid the robot believes it arrived: only an outside look can tell.
+                out[r] = MoveResult(r, tick, True, target.get(r, pos[r]))
         for r, c in pos.items():
             self.record[r].append(c)
         self.tick = tick
@@ -172,6 +182,30 @@ class MoveJudge:
                 why[r] = reason
                 del target[r]
                 changed = True
+
+    def _skid(self, tick: int, target: dict[int, Cell]) -> dict[int, Cell]:
+        """Some moves end elsewhere: the robot stays, or lands in another free neighbour cell nobody
+        else occupies after the tick. Never into a conflict: a skid that would hit someone does not happen."""
+        pos = self.positions
+        # Cells someone stands on now or after the tick are out: no vertex conflict, no swap.
+        taken = {target.get(r, c) for r, c in pos.items()} | set(pos.values())
+        actual = dict(target)
+        for r, to in target.items():
+            if self._rng.random() >= self.skid_prob:
+                continue
+            frm = pos[r]
+            sideways = [(frm[0] + dx, frm[1] + dy) for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1))]
+            options = [c for c in sideways if c != to and c not in taken and not self._step_problem(frm, c)]
+            if frm not in {target.get(o, c) for o, c in pos.items() if o != r}:
+                options.append(frm)   # no wheel turned: it stays, unless someone follows into its cell
+            if not options:
+                continue
+            land = options[int(self._rng.integers(len(options)))]
+            taken.discard(to)
+            taken.add(land)
+            actual[r] = land
+            self.skids.append({"tick": tick, "robot": r, "intended": list(to), "actual": list(land)})
+        return actual
 
     def slip(self, tick: int, robot: int, frm: Cell, to: Cell, reason: str) -> MoveResult:
         self.refused.append(Refusal(tick, robot, tuple(frm), tuple(to), reason, False))

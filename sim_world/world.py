@@ -59,6 +59,7 @@ class WorldConfig:
     listen: list[str] = field(default_factory=list)
     zenoh_config: str | None = None
     move_batch_timeout_s: float = MOVE_BATCH_TIMEOUT_S
+    slip: float = 0.0                 # probability that a move ends elsewhere, unknown to the robot
     end_timeout_s: float = 120.0      # after MissionEnd, the longest wait for the UAV to leave
 
     def check(self) -> None:
@@ -225,7 +226,8 @@ class World(Lifecycle):
         self.cfg = cfg
         self.keys = Keys(cfg.fleet)
         self.truth = build_truth(cfg)
-        self.judge = MoveJudge(self.truth.free, dict(self.truth.starts), cfg.connectivity)
+        self.judge = MoveJudge(self.truth.free, dict(self.truth.starts), cfg.connectivity,
+                               skid_prob=cfg.slip, seed=cfg.seed)
         self.desk: MoveDesk | None = None
         self.transport = transport
         self._own_transport = transport is None
@@ -393,7 +395,7 @@ class World(Lifecycle):
                 "robots": {str(r): list(c) for r, c in sorted(t.starts.items())},
                 "goals": [list(g) for g in t.goals],
                 "connectivity": self.cfg.connectivity, "cell_size_m": self.cfg.cell_size_m,
-                "vehicle": self.vehicle_dict()}
+                "slips": list(self.judge.skids), "vehicle": self.vehicle_dict()}
 
     def vehicle_dict(self) -> dict[str, Any] | None:
         """What the simulated autopilot itself saw: independent of what the UAV agent reports."""
@@ -518,8 +520,24 @@ def add_world_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera", default="", metavar="K=V,...",
                    help="camera options over the default 12 MP drone camera (4000x3000, 90 deg), "
                         "e.g. width=1280,height=960,hfov_deg=90,noise_std=2,blur_sigma=1,lighting=0.3")
+    p.add_argument("--fault", action="append", default=[], metavar="slip:P",
+                   help="slip:P: each move ends, with probability P, in another free neighbour cell or where "
+                        "it started, and the robot is told it arrived (only a camera sees the truth)")
     p.add_argument("--move-timeout", type=float, default=MOVE_BATCH_TIMEOUT_S, metavar="S",
                    help="how long a tick's moves are collected before the missing robots are made to stay")
+
+
+def slip_probability(faults: list[str]) -> float:
+    p = 0.0
+    for f in faults:
+        kind, _, value = f.partition(":")
+        try:
+            p = float(value)
+        except ValueError:
+            p = -1.0
+        if kind != "slip" or not 0.0 <= p <= 1.0:
+            raise UavRobotsError(f"--fault {f!r}: the world takes slip:P with P in [0, 1]")
+    return p
 
 
 def config_from_args(args: argparse.Namespace) -> WorldConfig:
@@ -536,7 +554,8 @@ def config_from_args(args: argparse.Namespace) -> WorldConfig:
                       connectivity=args.connectivity, cell_size_m=args.cell_size, home_lat=home[0],
                       home_lon=home[1], home_alt_m=home[2], mavlink=mav, time_scale=args.time_scale,
                       camera={**DRONE_CAMERA, **_camera_options(args.camera)}, connect=args.connect, listen=args.listen,
-                      zenoh_config=args.zenoh_config, move_batch_timeout_s=args.move_timeout)
+                      zenoh_config=args.zenoh_config, move_batch_timeout_s=args.move_timeout,
+                      slip=slip_probability(args.fault))
     cfg.check()
     return cfg
 

@@ -44,7 +44,22 @@ def test_obstacle_corner_cut_and_wrong_from():
     assert "obstacle" in out[0].reason
     out = j.resolve(3, {0: ((0, 0), (2, 2))})
     assert "more than one cell" in out[0].reason
-    assert j.collisions == 4 and j.positions == {0: (0, 0), 1: (3, 3)}
+    # A robot wrong about where it stands makes no motion: refused, but nobody was hit.
+    assert j.collisions == 3 and j.positions == {0: (0, 0), 1: (3, 3)}
+    assert [f.collision for f in j.refused] == [True, False, True, True]
+
+
+def test_a_skid_lands_elsewhere_without_a_conflict_and_the_robot_is_not_told():
+    free = np.ones((6, 6), dtype=bool)
+    starts = {r: (r, 0) for r in range(6)}
+    j = MoveJudge(free, dict(starts), 4, skid_prob=1.0, seed=1)
+    out = j.resolve(1, {r: ((r, 0), (r, 1)) for r in range(6)})
+    assert all(o.accepted and o.cell == (r, 1) for r, o in out.items())   # what the robots believe
+    assert j.skids and j.collisions == 0
+    cells = list(j.positions.values())
+    assert len(set(cells)) == len(cells)
+    for s in j.skids:
+        assert tuple(s["actual"]) == j.positions[s["robot"]] != tuple(s["intended"])
 
 
 def test_vertex_swap_and_following():

@@ -6,7 +6,6 @@ Each test runs `uav-robots run` as a user would, hurts it (signals to robot proc
 from __future__ import annotations
 
 import json
-import os
 import queue
 import re
 import signal
@@ -234,3 +233,24 @@ def test_a_second_ground_station_takes_the_vehicle(tmp_path, command, words):
     assert words in report["reason"]
     assert any(e["kind"] == "vehicle" and words in e["what"] for e in report["events"])
     assert not any("COMPLETED" in line for line in run.lines)
+
+
+def test_slips_are_seen_and_repaired(tmp_path):
+    run = Run(tmp_path / "out", "--robots", "30", "--map", "warehouse:blocks_x=4,blocks_y=6",
+              "--fault", "slip:0.02", "--seed", "3", "--monitor-every", "5")
+    code, report = run.finish()
+    assert code == 0, "".join(run.lines)[-3000:]
+    slips = report["truth"]["slips"]
+    assert slips, "the seeded run had no slip: choose another seed"
+    deviations = [e for e in report["events"] if e["kind"] in ("robot-deviation", "camera-deviation")]
+    for s in slips:
+        assert any(s["robot"] in e["robots"] and e["tick"] >= s["tick"] for e in deviations), (s, deviations)
+    assert report["replans"] >= 1 and report["monitor_images"] >= 1
+    _check_truth(report, set())
+
+
+def test_fault_specs_are_checked_before_anything_starts():
+    for bad in ("crash:3", "slip:2", "liar:99", "stall:1@0:3"):
+        run = subprocess.run([*CLI, "--fault", bad], capture_output=True, text=True, timeout=60)
+        assert run.returncode == 2 and run.stderr.startswith("error: --fault"), (bad, run.stderr)
+        assert len(run.stderr.strip().splitlines()) == 1

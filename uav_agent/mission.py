@@ -34,6 +34,7 @@ ABORT_LAND_TIMEOUT_S = 60.0
 RELOOK_ROUNDS = 2          # closer looks at markers whose id did not decode
 RELOOK_MAX_CELLS = 20
 RELOOK_MIN_ALT_M = 3.0
+MONITOR_EVERY = 25         # ticks between monitoring images (see docs/protocol.md, *Faults and recovery*)
 
 
 @dataclass
@@ -54,6 +55,7 @@ class MissionConfig:
     startup_timeout_s: float = 30.0
     tick_timeout_s: float = 10.0
     tick_rate_hz: float = 0.0          # at most this many ticks per second (0: as fast as the fleet goes)
+    monitor_every: int = MONITOR_EVERY  # an image every this many ticks while the robots move (0: never)
     min_px_per_cell: float = 20.0
 
 
@@ -124,6 +126,7 @@ class Mission:
         self.events = EventLog()
         self.tick = 0                           # the last tick sent
         self.replans = 0
+        self.monitored = 0
         self.blocked: dict[int, Cell] = {}      # robots out of the plan (lost, stalled, faulty) -> their cell
         self.blocked_at: dict[int, float] = {}  # when each was taken out (a later sign of life brings it back)
         self.verified: dict[int, bool] = {}
@@ -196,10 +199,10 @@ class Mission:
             while True:
                 self._execute()
                 self._verify()
-                back = self._rejoining()
-                if not back:
+                back, off = self._rejoining(), self._off_goal()
+                if not back and not off:
                     break
-                self._recover(self.tick, {"rejoin": back})
+                self._recover(self.tick, {"rejoin": back, "deviation": off})
             self._check_vehicle()
             self.watch.expect_airborne(False)
             self._end(self._outcome() != "failed", self._reason())
@@ -413,6 +416,10 @@ class Mission:
                     off = [r for r in plan.ids if self.fleet.cells.get(r) != plan.cell(r, k)]
                 if off:
                     faults = {"deviation": off}
+            if not faults and self.cfg.monitor_every and k % self.cfg.monitor_every == 0:
+                off = self._monitor(k)
+                if off:
+                    faults = {"deviation": off}
             if not faults:
                 back = self._rejoining()
                 if back:
@@ -429,9 +436,31 @@ class Mission:
         self.ticks = self.tick
         self.clock.lap("execute")
 
+    def _monitor(self, k: int) -> list[int]:
+        """One image from where the UAV hovers, taken while the fleet holds after tick k: robots seen
+        off their planned cell. Robots outside the image are not checked until the next full look."""
+        from .perception import perceive
+
+        t = time.perf_counter()
+        frame = self._capture()
+        model = perceive([frame], self.info.width, self.info.height, self.info.cell_size_m,
+                         known_ids=set(self.plan.ids))
+        off = sorted(r for r, c in model.robots.items() if r in self.plan.paths and tuple(c) != self.plan.cell(r, k))
+        self.clock.timings["monitor"] = round(self.clock.timings.get("monitor", 0.0) + time.perf_counter() - t, 4)
+        self.monitored += 1
+        if off:
+            self._event("camera-deviation", off, f"seen off its planned cell after tick {k}")
+        return off
+
     def _done_for(self, robot: int, plan: PlanState) -> bool:
         d = self.fleet.done.get(robot)
         return d is not None and d.tick > plan.start_tick
+
+    def _off_goal(self) -> list[int]:
+        """Working robots the last look did not find on their goals (a skid, a late slip): replanned."""
+        with self.fleet.cv:
+            alive = set(self.fleet.alive)
+        return sorted(r for r in self.plan.ids if not self.verified.get(r) and r in alive and r not in self.blocked)
 
     def _rejoining(self) -> list[int]:
         """Robots taken out of the plan that are back: alive, heard of since, no error."""
@@ -479,6 +508,11 @@ class Mission:
                         self.blocked_at[r] = time.monotonic()
             else:
                 working[r] = seen[r]
+        named = {r for robots in faults.values() for r in robots}
+        also = sorted(r for r in working if r in self.plan.paths and r not in named and working[r] != self.plan.cell(r, k))
+        if also:
+            self._event("camera-deviation", also, f"the fresh look found them off their plan after tick {k}",
+                        "replanned from where they are")
         unseen = [r for r in self.ids if r not in seen]
         if unseen:
             self._event("unseen", unseen, "not seen by the fresh look", "kept out of the plan")
@@ -521,11 +555,7 @@ class Mission:
                 where = f"on {seen[r]}" if r in seen else "nowhere"
                 self._event("done-contradicted", [r], f"raised Done but the camera sees it {where}"
                                                       + (f", not on its goal {tuple(g)}" if g else ""),
-                            "counted as not arrived; robot marked faulty")
-                cell = seen.get(r) or (plan.cell(r, self.tick) if r in plan.paths else None)
-                if cell is not None:
-                    self.blocked.setdefault(r, cell)
-                    self.blocked_at[r] = time.monotonic()
+                            "counted as not arrived")
             elif r in plan.ids and r not in claimed and self.verified[r]:
                 self._event("done-missing", [r], "on its goal but raised no Done", "counted as arrived (seen)")
         self.clock.lap("verify")
@@ -604,6 +634,7 @@ class Mission:
             "lost": sorted(self.blocked),
             "unserved_goals": [list(g) for g in self.unserved],
             "replans": self.replans,
+            "monitor_images": self.monitored,
             "events": self.events.as_dicts(),
             "collisions": record.collisions if record else None,
             "refused": record.refused if record else [],

@@ -88,15 +88,17 @@ class Launcher:
                                   "--connectivity", str(a.connectivity),
                                   "--time-limit", str(a.time_limit), "--seed", str(a.seed),
                                   "--tick-rate", str(a.tick_rate), "--tick-timeout", str(a.tick_timeout),
+                                  *(["--monitor-every", str(a.monitor_every)] if a.monitor_every is not None else []),
                                   *(["--planner", a.planner] if a.planner else []),
                                   *(["--no-fallback"] if a.no_fallback else [])], to_log=False)
         self._spawn("world", "sim_world", [*common, "--connect", self.endpoint, "--map", a.map,
                               "--robots", str(a.robots), "--seed", str(a.seed),
                               "--connectivity", str(a.connectivity),
                               "--mavlink", f"udpout:127.0.0.1:{self.udp}", "--time-scale", str(a.time_scale),
-                              *(["--camera", a.camera] if a.camera else [])],
+                              *(["--camera", a.camera] if a.camera else []),
+                              *[x for f in a.fault if f.startswith("slip:") for x in ("--fault", f)]],
                     to_log=True)
-        faults = [parse_fault(f) for f in a.fault]
+        faults = [parse_fault(f) for f in a.fault if not f.startswith("slip:")]
         for group in robot_groups(a.robots, a.robots_per_process):
             ids = f"{group[0]}-{group[-1]}"
             mine = [arg for f in faults if f.robot in group for arg in ("--fault", str(f))]
@@ -154,13 +156,14 @@ def run(args) -> int:
 
     name, free = resolve_map(args.map, args.seed)
     place(free, args.robots, args.seed)
-    from sim_world.world import MOVE_BATCH_TIMEOUT_S
+    from sim_world.world import MOVE_BATCH_TIMEOUT_S, slip_probability
+    slip_probability([f for f in args.fault if f.startswith("slip:")])
     if not args.tick_timeout > MOVE_BATCH_TIMEOUT_S:
         # Everyone waits for the world's batch when one robot is silent: a shorter deadline would call
         # the whole fleet stalled.
         raise UavRobotsError(f"--tick-timeout must exceed the world's move batch timeout "
                              f"({MOVE_BATCH_TIMEOUT_S:g} s), got {args.tick_timeout:g}")
-    for f in map(parse_fault, args.fault):
+    for f in map(parse_fault, (f for f in args.fault if not f.startswith("slip:"))):
         if f.robot >= args.robots:
             raise UavRobotsError(f"--fault {f}: there is no robot {f.robot} in a fleet of {args.robots}")
     if args.planner:
