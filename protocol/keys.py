@@ -6,8 +6,10 @@ import secrets
 from dataclasses import dataclass
 
 from .errors import UavRobotsError
+from .messages import MAX_ROBOT_ID
 
 ROOT = "uavr"
+ROBOT_ID_DIGITS = len(str(MAX_ROBOT_ID))
 _FLEET_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
 
@@ -100,9 +102,14 @@ class Keys:
 
 
 def robot_id_from_key(key: str) -> int | None:
-    """`.../robot/<id>/...` or `.../alive/robot/<id>` -> id, None if the key has no valid id."""
+    """`.../robot/<id>/...` or `.../alive/robot/<id>` -> id, None if the key has no valid id.
+
+    Only the id as `Keys` writes it counts: not '²' (a digit to `isdigit`, not to `int`), '007', or
+    more digits than a robot id has (`int` refuses thousands of them with ValueError)."""
     parts = key.split("/")
     for i, p in enumerate(parts[:-1]):
-        if p == "robot" and parts[i + 1].isdigit():
-            return int(parts[i + 1])
+        text = parts[i + 1]
+        if (p == "robot" and text.isascii() and text.isdigit() and len(text) <= ROBOT_ID_DIGITS
+                and str(int(text)) == text):
+            return int(text)
     return None

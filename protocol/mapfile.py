@@ -38,15 +38,18 @@ def format_rows(free: np.ndarray) -> list[str]:
     return [bytes(r).decode("ascii") for r in chars]
 
 
+def _read_text(path: Path, what: str) -> str:
+    try:
+        return path.read_text(encoding="ascii", errors="replace")
+    except FileNotFoundError:
+        raise MapError(f"{what} file not found: {path}") from None
+    except OSError as exc:
+        raise MapError(f"cannot read {what} file {path}: {exc.strerror}") from None
+
+
 def read_map(path: str | Path) -> np.ndarray:
     path = Path(path)
-    try:
-        text = path.read_text(encoding="ascii", errors="replace")
-    except FileNotFoundError:
-        raise MapError(f"map file not found: {path}") from None
-    except OSError as exc:
-        raise MapError(f"cannot read map file {path}: {exc.strerror}") from None
-    return parse_map_text(text, str(path))
+    return parse_map_text(_read_text(path, "map"), str(path))
 
 
 def parse_map_text(text: str, name: str = "map") -> np.ndarray:
@@ -95,12 +98,11 @@ class ScenAgent:
 def read_scen(path: str | Path, free: np.ndarray | None = None, agents: int | None = None) -> list[ScenAgent]:
     """The first `agents` lines of a scen file; with `free`, checks cells are on free cells."""
     path = Path(path)
-    try:
-        lines = path.read_text(encoding="ascii", errors="replace").splitlines()
-    except FileNotFoundError:
-        raise MapError(f"scenario file not found: {path}") from None
+    lines = _read_text(path, "scenario").splitlines()
     out: list[ScenAgent] = []
     for n, line in enumerate(lines, 1):
+        if agents is not None and len(out) >= agents:
+            break
         if not line.strip() or line.lower().startswith("version"):
             continue
         parts = line.split("\t") if "\t" in line else line.split()
@@ -111,14 +113,14 @@ def read_scen(path: str | Path, free: np.ndarray | None = None, agents: int | No
             length = float(parts[8]) if len(parts) > 8 else 0.0
         except ValueError:
             raise MapError(f"{path}: line {n} has a non-numeric coordinate") from None
+        if min(sx, sy, gx, gy) < 0:  # numpy would read free[-1, x] as the last row, silently
+            raise MapError(f"{path}: line {n} has a negative coordinate")
         a = ScenAgent((sx, sy), (gx, gy), length)
         if free is not None:
             for what, (x, y) in (("start", a.start), ("goal", a.goal)):
                 if not on_grid(x, y, free.shape[1], free.shape[0]) or not free[y, x]:
                     raise MapError(f"{path}: line {n}: {what} ({x}, {y}) is not a free cell of the map")
         out.append(a)
-        if agents is not None and len(out) == agents:
-            break
     if agents is not None and len(out) < agents:
         raise MapError(f"{path}: asked for {agents} agents, the file has {len(out)}")
     return out

@@ -1,30 +1,90 @@
 """Typed, versioned messages: the wire contract between UAV, world and robots.
 
-Every message is a frozen dataclass. On the wire it is one JSON object
+Every message is a frozen dataclass. On the wire it is one UTF-8 JSON object
 `{"type": ..., "v": PROTOCOL_VERSION, "seq": ..., <fields>}`; a message with a
 `bytes` field (a camera image) carries those bytes after a NUL byte that JSON
-itself never contains. `decode` checks the type name, the version and every
-field's type, and raises `ProtocolError` with one line naming the problem, so a
-garbage or forged payload on a key is refused, never half-applied.
+itself never contains. `decode` checks the size, the type name, the version and
+every field's type and bounds, and raises `ProtocolError` with one line naming
+the problem, so a garbage or forged payload on a key is refused, never
+half-applied, and never costs a receiver more than the limits below.
+
+The bounds live in the field annotations (`Range`, `MaxLen`, `Pattern` inside
+`Annotated`); the decoder and the JSON Schemas (`protocol.schemas`) are both
+derived from them.
 """
 from __future__ import annotations
 
 import dataclasses
 import json
+import re
+import sys
 import types
 import typing
 from dataclasses import dataclass, field
-from typing import Any, Callable, TypeVar, get_args, get_origin
+from typing import Annotated, Any, Callable, ClassVar, Literal, NamedTuple, TypeVar, get_args, get_origin
 
 from .errors import ProtocolError
-from .grid import Cell
 
 PROTOCOL_VERSION = 1
+
+# Limits: every number that sizes a receiver's memory or work is bounded when a message is
+# decoded. docs/protocol.md repeats them for other implementations.
+MAX_MESSAGE_BYTES = 8 * 2**20    # JSON text of any message but a Record (a full MoveBatchResult fits)
+MAX_RECORD_BYTES = 128 * 2**20   # a Record holds every robot's executed path
+MAX_IMAGE_BYTES = 64 * 2**20     # a CameraFrame's PNG, after the NUL
+MAX_DEPTH = 32                   # nested arrays and objects, the message's own object included
+MAX_COUNT = 2**53 - 1            # seq and counters: the largest integer every JSON reader holds exactly
+MAX_ROBOT_ID = 9_999_999         # seven decimal digits, also as Record.executed's keys
+MAX_ROBOTS = 65_536              # entries of a MoveBatch, a MoveBatchResult, Record.executed
+MAX_TICKS = 100_000              # tick numbers and makespans
+MAX_PATH_CELLS = MAX_TICKS + 1   # a planned or executed path: one cell per tick from 0
+MAX_GRID_SIDE = 16_384           # cells per floor row or column; coordinates are 0 .. MAX_GRID_SIDE - 1
+MAX_IMAGE_SIDE = 16_384          # camera image width and height, pixels
+MAX_TEXT_CHARS = 4_096           # any string
+MAX_REFUSED = 1_000_000          # entries of Record.refused
+MAX_KEYS = 256                   # keys of a free-form object (Record.truth, an entry of Record.refused)
+MAX_FLOAT = sys.float_info.max
+
+
+@dataclass(frozen=True)
+class Range:
+    """A number's inclusive bounds; `open_lo` excludes the lower one (a positive float)."""
+    lo: int | float
+    hi: int | float
+    open_lo: bool = False
+
+
+@dataclass(frozen=True)
+class MaxLen:
+    """At most `n` characters of a string, items of an array, keys of an object or bytes of a binary tail."""
+    n: int
+
+
+@dataclass(frozen=True)
+class Pattern:
+    """A string's whole text matches `regex` (written so that JSON Schema reads it the same)."""
+    regex: str
+
+
+Count = Annotated[int, Range(0, MAX_COUNT)]
+RobotId = Annotated[int, Range(0, MAX_ROBOT_ID)]
+RobotKey = Annotated[str, MaxLen(len(str(MAX_ROBOT_ID))), Pattern("0|[1-9][0-9]*")]  # an id as str(id) writes it
+Robots = Annotated[int, Range(0, MAX_ROBOTS)]
+TickNo = Annotated[int, Range(0, MAX_TICKS)]
+Coord = Annotated[int, Range(0, MAX_GRID_SIDE - 1)]
+Cell = tuple[Coord, Coord]  # protocol.grid.Cell with bounded coordinates
+Path = Annotated[list[Cell], MaxLen(MAX_PATH_CELLS)]
+Text = Annotated[str, MaxLen(MAX_TEXT_CHARS)]
+Finite = Annotated[float, Range(-MAX_FLOAT, MAX_FLOAT)]
+Positive = Annotated[float, Range(0.0, MAX_FLOAT, open_lo=True)]
+Object = Annotated[dict[Text, Any], MaxLen(MAX_KEYS)]
+Status = Literal["idle", "ready", "stepping", "done", "error"]
 
 
 @dataclass(frozen=True)
 class Message:
-    seq: int = field(default=0, kw_only=True)
+    max_json_bytes: ClassVar[int] = MAX_MESSAGE_BYTES
+    seq: Count = field(default=0, kw_only=True)
 
 
 @dataclass(frozen=True)
@@ -34,44 +94,44 @@ class Plan(Message):
     A replan during a mission starts at the tick the fleet holds at; every tick after it
     names the new plan_id, so all robots switch at the same boundary.
     """
-    robot: int
-    plan_id: str
-    path: list[Cell]
+    robot: RobotId
+    plan_id: Text
+    path: Path
     goal: Cell
-    start_tick: int = 0
+    start_tick: TickNo = 0
 
 
 @dataclass(frozen=True)
 class PlanAck(Message):
-    robot: int
-    plan_id: str
+    robot: RobotId
+    plan_id: Text
     ok: bool
-    error: str = ""
+    error: Text = ""
 
 
 @dataclass(frozen=True)
 class Tick(Message):
     """UAV -> all robots: execute step k (move to plan cell k); `ticks` is the makespan."""
-    k: int
-    ticks: int
-    plan_id: str
+    k: Annotated[int, Range(1, MAX_TICKS)]
+    ticks: TickNo
+    plan_id: Text
 
 
 @dataclass(frozen=True)
 class MoveRequest(Message):
-    robot: int
-    tick: int
+    robot: RobotId
+    tick: TickNo
     frm: Cell
     to: Cell
 
 
 @dataclass(frozen=True)
 class MoveResult(Message):
-    robot: int
-    tick: int
+    robot: RobotId
+    tick: TickNo
     accepted: bool
     cell: Cell
-    reason: str = ""
+    reason: Text = ""
 
 
 @dataclass(frozen=True)
@@ -80,31 +140,31 @@ class MoveBatch(Message):
 
     moves: (robot, frm, to) each; answered by one MoveBatchResult.
     """
-    tick: int
-    moves: list[tuple[int, Cell, Cell]]
+    tick: TickNo
+    moves: Annotated[list[tuple[RobotId, Cell, Cell]], MaxLen(MAX_ROBOTS)]
 
 
 @dataclass(frozen=True)
 class MoveBatchResult(Message):
     """results: (robot, accepted, cell, reason) for every move of the MoveBatch."""
-    tick: int
-    results: list[tuple[int, bool, Cell, str]]
+    tick: TickNo
+    results: Annotated[list[tuple[RobotId, bool, Cell, Text]], MaxLen(MAX_ROBOTS)]
 
 
 @dataclass(frozen=True)
 class RobotState(Message):
-    robot: int
-    tick: int
+    robot: RobotId
+    tick: TickNo
     cell: Cell
-    status: str  # idle | ready | stepping | done | error
-    plan_id: str = ""
-    error: str = ""
+    status: Status
+    plan_id: Text = ""
+    error: Text = ""
 
 
 @dataclass(frozen=True)
 class Done(Message):
-    robot: int
-    tick: int
+    robot: RobotId
+    tick: TickNo
     cell: Cell
 
 
@@ -116,18 +176,18 @@ class CameraRequest(Message):
 
 @dataclass(frozen=True)
 class CameraFrame(Message):
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    north_m: float  # camera position in the local NED frame whose origin is the grid's top-left corner
-    east_m: float
-    down_m: float
-    yaw_rad: float
-    time_s: float
-    png: bytes
+    width: Annotated[int, Range(1, MAX_IMAGE_SIDE)]
+    height: Annotated[int, Range(1, MAX_IMAGE_SIDE)]
+    fx: Positive
+    fy: Positive
+    cx: Finite
+    cy: Finite
+    north_m: Finite  # camera position in the local NED frame whose origin is the grid's top-left corner
+    east_m: Finite
+    down_m: Finite
+    yaw_rad: Finite
+    time_s: Finite
+    png: Annotated[bytes, MaxLen(MAX_IMAGE_BYTES)]
 
 
 @dataclass(frozen=True)
@@ -138,12 +198,12 @@ class WorldInfoRequest(Message):
 @dataclass(frozen=True)
 class WorldInfo(Message):
     """Site calibration, known to the UAV before it flies (not ground truth about robots)."""
-    width: int  # grid cells
-    height: int
-    cell_size_m: float
-    home_lat: float
-    home_lon: float
-    home_alt_m: float
+    width: Annotated[int, Range(1, MAX_GRID_SIDE)]  # grid cells
+    height: Annotated[int, Range(1, MAX_GRID_SIDE)]
+    cell_size_m: Positive
+    home_lat: Annotated[float, Range(-90.0, 90.0)]
+    home_lon: Annotated[float, Range(-180.0, 180.0)]
+    home_alt_m: Finite
 
 
 @dataclass(frozen=True)
@@ -154,27 +214,28 @@ class RecordRequest(Message):
 @dataclass(frozen=True)
 class Record(Message):
     """World -> anyone, for scoring after the mission: what physically happened."""
-    ticks: int
-    collisions: int
-    refused: list[dict[str, Any]]
-    executed: dict[str, list[Cell]]
-    truth: dict[str, Any]
+    max_json_bytes: ClassVar[int] = MAX_RECORD_BYTES
+    ticks: TickNo
+    collisions: Count
+    refused: Annotated[list[Object], MaxLen(MAX_REFUSED)]
+    executed: Annotated[dict[RobotKey, Path], MaxLen(MAX_ROBOTS)]
+    truth: Object
 
 
 @dataclass(frozen=True)
 class MissionStatus(Message):
-    phase: str
-    tick: int = 0
-    ticks: int = 0
-    done: int = 0
-    robots: int = 0
-    message: str = ""
+    phase: Text
+    tick: TickNo = 0
+    ticks: TickNo = 0
+    done: Robots = 0
+    robots: Robots = 0
+    message: Text = ""
 
 
 @dataclass(frozen=True)
 class MissionEnd(Message):
     completed: bool
-    reason: str = ""
+    reason: Text = ""
 
 
 MESSAGE_TYPES: dict[str, type[Message]] = {
@@ -184,20 +245,40 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
 }
 
 M = TypeVar("M", bound=Message)
-_HINTS: dict[type, dict[str, Any]] = {}
 
 
-def _hints(cls: type) -> dict[str, Any]:
-    if cls not in _HINTS:
-        _HINTS[cls] = typing.get_type_hints(cls)
-    return _HINTS[cls]
+class WireField(NamedTuple):
+    name: str
+    type: Any        # with its Annotated bounds
+    required: bool
 
 
-def _bytes_field(cls: type) -> str | None:
-    for f in dataclasses.fields(cls):
-        if _hints(cls)[f.name] is bytes:
-            return f.name
-    return None
+_FIELDS: dict[type, list[WireField]] = {}
+
+
+def wire_fields(cls: type[Message]) -> list[WireField]:
+    """A message type's fields in wire order (`seq` first), with their bounded types."""
+    if cls not in _FIELDS:
+        hints = typing.get_type_hints(cls, include_extras=True)
+        _FIELDS[cls] = [WireField(f.name, hints[f.name],
+                                  f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING)
+                        for f in dataclasses.fields(cls)]
+    return _FIELDS[cls]
+
+
+def unwrap(tp: Any) -> tuple[Any, tuple[Any, ...]]:
+    """Annotated[T, *bounds] -> (T, bounds); any other type -> (it, ())."""
+    if get_origin(tp) is Annotated:
+        return tp.__origin__, tp.__metadata__
+    return tp, ()
+
+
+def bound(meta: tuple[Any, ...], kind: type) -> Any:
+    return next((m for m in meta if isinstance(m, kind)), None)
+
+
+def _bytes_field(cls: type[Message]) -> str | None:
+    return next((f.name for f in wire_fields(cls) if unwrap(f.type)[0] is bytes), None)
 
 
 def encode(msg: Message) -> bytes:
@@ -213,118 +294,167 @@ def encode(msg: Message) -> bytes:
     return head + b"\0" + getattr(msg, blob_name)
 
 
+class _NotANumber(Exception):
+    """NaN or Infinity in the text: Python's json reads them, JSON has no such tokens."""
+
+
+def _refuse_constant(token: str) -> Any:
+    raise _NotANumber(token)
+
+
+_JSON = json.JSONDecoder(parse_constant=_refuse_constant)
+
+
 def decode(data: bytes | bytearray | memoryview, expected: type[M]) -> M:
     """Bytes -> message of type `expected`, or ProtocolError naming what is wrong."""
-    data = bytes(data)
     name = expected.__name__
-    blob_name, fields = _schema(expected)
+    codec = _codec(expected)
+    if len(data) > codec.max_payload:  # before copying or parsing anything
+        raise ProtocolError(f"{name}: payload of {len(data)} bytes is over the limit of {codec.max_payload}")
+    data = bytes(data)
     head, blob = data, b""
-    if blob_name is not None:
+    if codec.blob is not None:
         head, sep, blob = data.partition(b"\0")
         if not sep:
             raise ProtocolError(f"{name}: payload lacks its binary part")
+        if len(head) > expected.max_json_bytes:
+            raise ProtocolError(f"{name}: JSON part of {len(head)} bytes is over the limit of "
+                                f"{expected.max_json_bytes}")
+        if len(blob) > codec.max_blob:
+            raise ProtocolError(f"{name}: binary part of {len(blob)} bytes is over the limit of {codec.max_blob}")
     try:
-        body = json.loads(head)
-    except (UnicodeDecodeError, ValueError):
-        raise ProtocolError(f"{name}: payload is not JSON ({len(data)} bytes: {data[:24]!r})") from None
-    if not isinstance(body, dict):
+        body = _JSON.decode(head.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ProtocolError(f"{name}: payload is not JSON (not UTF-8 at byte {exc.start}: {data[:24]!r})") from None
+    except ValueError as exc:  # malformed JSON, or an integer of more digits than Python converts
+        why = exc.msg if isinstance(exc, json.JSONDecodeError) else "a number too long"
+        raise ProtocolError(f"{name}: payload is not JSON ({why}; {len(data)} bytes: {data[:24]!r})") from None
+    except _NotANumber as exc:
+        raise ProtocolError(f"{name}: payload is not JSON ({exc.args[0]} is not a JSON number)") from None
+    except RecursionError:  # the parser recurses per level: a nesting bomb ends here, not in the caller
+        raise ProtocolError(f"{name}: payload nests deeper than {MAX_DEPTH} levels") from None
+    if type(body) is not dict:
         raise ProtocolError(f"{name}: payload is not a JSON object")
     if body.get("type") != name:
         raise ProtocolError(f"expected a {name} message, got type {str(body.get('type'))[:40]!r}")
-    if body.get("v") != PROTOCOL_VERSION:
-        raise ProtocolError(f"{name}: schema version {str(body.get('v'))[:20]!r} is not supported "
+    v = body.get("v")
+    if type(v) is not int or v != PROTOCOL_VERSION:
+        raise ProtocolError(f"{name}: schema version {str(v)[:20]!r} is not supported "
                             f"(this side speaks {PROTOCOL_VERSION})")
     kwargs: dict[str, Any] = {}
-    for fname, required, conv in fields:
-        if fname == blob_name:
-            kwargs[fname] = blob
-        elif fname in body:
+    for fname, required, conv in codec.fields:
+        if fname in body:
             kwargs[fname] = conv(body[fname])
         elif required:
             raise ProtocolError(f"{name}: field {fname!r} is missing")
+    if len(body) > len(kwargs) + 2:
+        _check_unknown(name, body, codec.known)
+    if codec.blob is not None:
+        kwargs[codec.blob] = blob
     return expected(**kwargs)
 
 
-_SCHEMAS: dict[type, tuple[str | None, list[tuple[str, bool, Callable[[Any], Any]]]]] = {}
+def _check_unknown(name: str, body: dict[str, Any], known: frozenset[str]) -> None:
+    """Unknown fields are ignored (a newer sender may add optional ones), but not their depth."""
+    for key, value in body.items():
+        if key not in known and type(value) in (list, dict) and _deeper_than(value, MAX_DEPTH - 1):
+            raise ProtocolError(f"{name}: field {key[:40]!r} nests deeper than {MAX_DEPTH} levels")
 
 
-def _schema(cls: type) -> tuple[str | None, list[tuple[str, bool, Callable[[Any], Any]]]]:
-    """Per message type, once: the blob field and a compiled converter per field (decode is on the hot path)."""
-    if cls not in _SCHEMAS:
-        hints = _hints(cls)
-        fields = [(f.name, f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING,
-                   _converter(hints[f.name], f"{cls.__name__}.{f.name}")) for f in dataclasses.fields(cls)]
-        _SCHEMAS[cls] = (_bytes_field(cls), fields)
-    return _SCHEMAS[cls]
+class _Codec(NamedTuple):
+    blob: str | None
+    fields: list[tuple[str, bool, Callable[[Any], Any]]]
+    known: frozenset[str]
+    max_blob: int
+    max_payload: int
 
 
-def _fail(where: str, tp: Any, value: Any) -> ProtocolError:
-    return ProtocolError(f"{where}: expected {getattr(tp, '__name__', str(tp))}, got {type(value).__name__}")
+_CODECS: dict[type, _Codec] = {}
 
 
-def _converter(tp: Any, where: str) -> Callable[[Any], Any]:
-    origin = get_origin(tp)
-    if tp is Any or tp is bytes:  # bytes travel after the NUL, never through JSON
-        return lambda v: v
-    if tp is bool:
+def _codec(cls: type[Message]) -> _Codec:
+    """Per message type, once: a compiled converter per field (decode is on the hot path of every tick)."""
+    if cls not in _CODECS:
+        blob = _bytes_field(cls)
+        fields = [(f.name, f.required, _converter(f.type, f"{cls.__name__}.{f.name}", 1))
+                  for f in wire_fields(cls) if f.name != blob]
+        max_blob = sum(_need(bound(unwrap(f.type)[1], MaxLen), "binary tail", f.name).n
+                       for f in wire_fields(cls) if f.name == blob)
+        _CODECS[cls] = _Codec(blob, fields, frozenset({"type", "v"} | {f[0] for f in fields}), max_blob,
+                              cls.max_json_bytes + (0 if blob is None else 1 + max_blob))
+    return _CODECS[cls]
+
+
+def _deeper_than(value: Any, limit: int) -> bool:
+    """Whether `value` nests more than `limit` arrays and objects; level by level, so no recursion."""
+    level = [value]
+    for _ in range(limit):
+        level = [y for x in level if type(x) in (list, dict) for y in (x.values() if type(x) is dict else x)]
+        if not level:
+            return False
+    return any(type(x) in (list, dict) for x in level)
+
+
+def _show(v: Any) -> str:
+    """A received value in an error line: short whatever it is."""
+    if type(v) is int:
+        return str(v) if v.bit_length() <= 64 else f"a {v.bit_length()}-bit int"
+    if type(v) is float:
+        return repr(v)
+    if type(v) is str:
+        return repr(v) if len(v) <= 24 else f"str of {len(v)} characters"
+    if type(v) is list and len(v) <= 4 and all(type(x) in (int, float, bool) or x is None for x in v):
+        text = json.dumps(v)  # a cell, say: its values are the news
+        if len(text) <= 48:
+            return text
+    if type(v) in (list, dict):
+        return f"{type(v).__name__} of {len(v)}"
+    return "null" if v is None else type(v).__name__
+
+
+def _fail(where: str, expected: str, value: Any) -> ProtocolError:
+    return ProtocolError(f"{where}: expected {expected}, got {_show(value)}")
+
+
+def _need(meta: Any, what: str, where: str) -> Any:
+    if meta is None:  # every field that sizes memory must say its bound: a schema author's mistake
+        raise TypeError(f"{where}: unbounded {what} in a message schema")
+    return meta
+
+
+def _converter(tp: Any, where: str, outer: int) -> Callable[[Any], Any]:
+    """A checking converter for a JSON value of type `tp` that sits inside `outer` arrays/objects."""
+    base, meta = unwrap(tp)
+    origin = get_origin(base)
+    if base is Any:
+        return _any_converter(where, MAX_DEPTH - outer)
+    if base is bool:
         def conv(v: Any) -> Any:
             if v is True or v is False:
                 return v
-            raise _fail(where, tp, v)
+            raise _fail(where, "bool", v)
         return conv
-    if tp is int:
+    if base is int or base is float:
+        return _number_converter(base, _need(bound(meta, Range), "number", where), where)
+    if base is str:
+        return _text_converter(_need(bound(meta, MaxLen), "string", where).n, bound(meta, Pattern), where)
+    if origin is Literal:
+        allowed = frozenset(get_args(base))
+        expected = "one of " + ", ".join(sorted(allowed))
+
         def conv(v: Any) -> Any:
-            if type(v) is int:
+            if type(v) is str and v in allowed:
                 return v
-            raise _fail(where, tp, v)
-        return conv
-    if tp is float:
-        def conv(v: Any) -> Any:
-            if type(v) is float or type(v) is int:
-                return float(v)
-            raise _fail(where, tp, v)
-        return conv
-    if tp is str:
-        def conv(v: Any) -> Any:
-            if type(v) is str:
-                return v
-            raise _fail(where, tp, v)
+            raise _fail(where, expected, v)
         return conv
     if origin is tuple:
-        args = get_args(tp)
-        if all(a is int for a in args):  # cells: the most common shape by far
-            n = len(args)
-
-            def conv(v: Any) -> Any:
-                if type(v) is list and len(v) == n and all(type(x) is int for x in v):
-                    return tuple(v)
-                raise _fail(where, tp, v)
-            return conv
-        parts = [_converter(a, where) for a in args]
-
-        def conv(v: Any) -> Any:
-            if type(v) is list and len(v) == len(parts):
-                return tuple(c(x) for c, x in zip(parts, v))
-            raise _fail(where, tp, v)
-        return conv
+        return _tuple_converter(get_args(base), where, outer)
     if origin is list:
-        item = _converter(get_args(tp)[0], where)
-
-        def conv(v: Any) -> Any:
-            if type(v) is list:
-                return [item(x) for x in v]
-            raise _fail(where, tp, v)
-        return conv
+        return _list_converter(get_args(base)[0], _need(bound(meta, MaxLen), "list", where).n, where, outer)
     if origin is dict:
-        value = _converter(get_args(tp)[1], where)
-
-        def conv(v: Any) -> Any:
-            if type(v) is dict:
-                return {str(k): value(x) for k, x in v.items()}
-            raise _fail(where, tp, v)
-        return conv
+        return _dict_converter(get_args(base), _need(bound(meta, MaxLen), "object", where).n, where, outer)
     if origin in (typing.Union, types.UnionType):
-        options = [_converter(a, where) for a in get_args(tp)]
+        options = [_converter(a, where, outer) for a in get_args(base)]
 
         def conv(v: Any) -> Any:
             for c in options:
@@ -332,6 +462,135 @@ def _converter(tp: Any, where: str) -> Callable[[Any], Any]:
                     return c(v)
                 except ProtocolError:
                     pass
-            raise _fail(where, tp, v)
+            raise _fail(where, " or ".join(str(a) for a in get_args(base)), v)
         return conv
     raise TypeError(f"unsupported schema type {tp} at {where}")  # a schema author's mistake, not bad input
+
+
+def _any_converter(where: str, room: int) -> Callable[[Any], Any]:
+    def conv(v: Any) -> Any:
+        if type(v) in (list, dict) and _deeper_than(v, room):
+            raise ProtocolError(f"{where}: nests deeper than {MAX_DEPTH} levels")
+        return v
+    return conv
+
+
+def _number_converter(base: type, r: Range, where: str) -> Callable[[Any], Any]:
+    lo, hi = r.lo, r.hi
+    if base is int:
+        expected = f"int in [{lo}, {hi}]"
+
+        def conv(v: Any) -> Any:
+            if type(v) is int and lo <= v <= hi:
+                return v
+            raise _fail(where, expected, v)
+        return conv
+    # JSON writes 2.0 as 2 in some languages: ints are numbers too. NaN fails every comparison.
+    expected = ("finite float" if lo == -MAX_FLOAT and hi == MAX_FLOAT else
+                f"finite float {'>' if r.open_lo else '>='} {lo:g}" if hi == MAX_FLOAT else
+                f"float in {'(' if r.open_lo else '['}{lo:g}, {hi:g}]")
+    if r.open_lo:
+        def conv(v: Any) -> Any:
+            if (type(v) is float or type(v) is int) and lo < v <= hi:
+                return float(v)
+            raise _fail(where, expected, v)
+        return conv
+
+    def conv(v: Any) -> Any:
+        if (type(v) is float or type(v) is int) and lo <= v <= hi:
+            return float(v)
+        raise _fail(where, expected, v)
+    return conv
+
+
+def _unicode(text: str) -> bool:
+    """JSON escapes can spell lone surrogates, which no UTF-8 writer (nor a log line) accepts."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def _text_converter(n: int, pattern: Pattern | None, where: str) -> Callable[[Any], Any]:
+    match = re.compile(pattern.regex).fullmatch if pattern is not None else None
+
+    def conv(v: Any) -> Any:
+        _check_sized(v, str, n, where)
+        if not (v.isascii() or _unicode(v)):
+            raise ProtocolError(f"{where}: text holds a lone surrogate, not Unicode")
+        if match is not None and match(v) is None:
+            raise _fail(where, f"text matching {pattern.regex}", v)
+        return v
+    return conv
+
+
+def _tuple_converter(args: tuple[Any, ...], where: str, outer: int) -> Callable[[Any], Any]:
+    n = len(args)
+    first, meta = unwrap(args[0])
+    if n == 2 and first is int and args[0] == args[1]:  # cells: the most common shape by far, inlined
+        r = _need(bound(meta, Range), "number", where)
+        lo, hi, expected = r.lo, r.hi, f"[int, int] in [{r.lo}, {r.hi}]"
+
+        def conv(v: Any) -> Any:
+            if type(v) is list and len(v) == 2:
+                x, y = v
+                if type(x) is int and type(y) is int and lo <= x <= hi and lo <= y <= hi:
+                    return (x, y)
+            raise _fail(where, expected, v)
+        return conv
+    parts = [_converter(a, f"{where}[{i}]", outer + 1) for i, a in enumerate(args)]
+
+    def conv(v: Any) -> Any:
+        if type(v) is list and len(v) == n:
+            return tuple(c(x) for c, x in zip(parts, v))
+        raise _fail(where, f"list of {n}", v)
+    return conv
+
+
+def _list_converter(item_tp: Any, n: int, where: str, outer: int) -> Callable[[Any], Any]:
+    item = _converter(item_tp, f"{where}[i]", outer + 1)
+
+    def conv(v: Any) -> Any:
+        _check_sized(v, list, n, where)
+        try:
+            return [item(x) for x in v]
+        except ProtocolError as exc:
+            raise _indexed(exc, item, enumerate(v), f"{where}[i]", "[{}]") from None
+    return conv
+
+
+def _dict_converter(args: tuple[Any, Any], n: int, where: str, outer: int) -> Callable[[Any], Any]:
+    key = _converter(args[0], f"{where} key", outer + 1)
+    value = _converter(args[1], f"{where}[k]", outer + 1)
+
+    def conv(v: Any) -> Any:
+        _check_sized(v, dict, n, where)
+        try:
+            return {key(k): value(x) for k, x in v.items()}
+        except ProtocolError as exc:
+            for k in v:
+                key(k)
+            raise _indexed(exc, value, v.items(), f"{where}[k]", "[{!r}]") from None
+    return conv
+
+
+_KINDS = {list: ("list", "items"), dict: ("object", "keys"), str: ("str", "characters")}
+
+
+def _check_sized(v: Any, kind: type, n: int, where: str) -> None:
+    if type(v) is not kind:
+        raise _fail(where, _KINDS[kind][0], v)
+    if len(v) > n:
+        raise ProtocolError(f"{where}: {len(v)} {_KINDS[kind][1]}, more than the limit of {n}")
+
+
+def _indexed(first: ProtocolError, conv: Callable[[Any], Any], items: Any, placeholder: str,
+             fmt: str) -> ProtocolError:
+    """The error naming the item that failed: found by converting again, as the fast path keeps no index."""
+    for at, x in items:
+        try:
+            conv(x)
+        except ProtocolError as exc:
+            return ProtocolError(str(exc).replace(placeholder, placeholder[:-3] + fmt.format(at), 1))
+    return first

@@ -73,6 +73,12 @@ def test_scen_checks_cells(tmp_path):
         read_scen(tmp_path / "s.scen", free)
     with pytest.raises(MapError, match="asked for 5 agents"):
         read_scen(tmp_path / "s.scen", agents=5)
+    assert read_scen(tmp_path / "s.scen", agents=0) == []
+    (tmp_path / "neg.scen").write_text("version 1\n0\tm\t3\t3\t-1\t0\t0\t0\t2\n")
+    with pytest.raises(MapError, match="line 2 has a negative coordinate"):
+        read_scen(tmp_path / "neg.scen")  # numpy would wrap -1 round to the last column
+    with pytest.raises(MapError, match="cannot read scenario file"):
+        read_scen(tmp_path)
 
 
 def test_too_many_robots():

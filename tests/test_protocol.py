@@ -1,14 +1,19 @@
 """Messages, keys and both transports (Zenoh on loopback and in-memory)."""
+import dataclasses
+import json
 import threading
 import time
 
 import pytest
-from hypothesis import given, strategies as st
+from hypothesis import given, settings, strategies as st
 
+from protocol import messages as m
 from protocol.config import client_config, hub_config
 from protocol.errors import MissionError, ProtocolError
 from protocol.keys import Keys, robot_id_from_key
-from protocol.messages import (MESSAGE_TYPES, CameraFrame, Plan, decode, encode)
+from protocol.messages import (MESSAGE_TYPES, CameraFrame, MissionEnd, Plan, Record, RobotState, Tick, WorldInfo,
+                               decode, encode)
+from protocol.schemas import SCHEMA_DIR, schema_files, stale_files
 from protocol.transport import MemoryBus, MemoryTransport, ZenohTransport
 
 cells = st.tuples(st.integers(0, 10_000), st.integers(0, 10_000))
@@ -52,12 +57,121 @@ def test_any_bytes_decode_or_raise_protocol_error(data):
             pass
 
 
+def _plan(**kw) -> bytes:
+    body = {"type": "Plan", "v": 1, "robot": 1, "plan_id": "a", "path": [[0, 0]], "goal": [0, 0], **kw}
+    return json.dumps(body).encode()
+
+
+@pytest.mark.parametrize("field, ok, bad", [
+    ("robot", m.MAX_ROBOT_ID, m.MAX_ROBOT_ID + 1),
+    ("robot", 0, -1),
+    ("seq", m.MAX_COUNT, m.MAX_COUNT + 1),
+    ("seq", 0, -1),
+    ("goal", [m.MAX_GRID_SIDE - 1, 0], [m.MAX_GRID_SIDE, 0]),
+    ("goal", [0, 0], [0, -1]),
+    ("plan_id", "x" * m.MAX_TEXT_CHARS, "x" * (m.MAX_TEXT_CHARS + 1)),
+    ("path", [[0, 0]] * m.MAX_PATH_CELLS, [[0, 0]] * (m.MAX_PATH_CELLS + 1)),
+])
+def test_limits_at_their_edges(field, ok, bad):
+    assert decode(_plan(**{field: ok}), Plan)
+    with pytest.raises(ProtocolError, match=f"Plan.{field}"):
+        decode(_plan(**{field: bad}), Plan)
+
+
+@pytest.mark.parametrize("payload, cls, needle", [
+    (_plan(robot=True), Plan, "expected int"),
+    (_plan(path=[[0, 0], [0, 1.0]]), Plan, r"Plan.path\[1\]"),
+    (b'{"type":"Plan","v":1.0,"robot":1}', Plan, "schema version"),
+    (b'{"type":"Plan","v":true,"robot":1}', Plan, "schema version"),
+    (b'{"type":"MissionEnd","v":1,"completed":1}', MissionEnd, "expected bool"),
+    (b'{"type":"Tick","v":1,"k":0,"ticks":1,"plan_id":"a"}', Tick, "Tick.k"),
+    (b'{"type":"RobotState","v":1,"robot":1,"tick":1,"cell":[0,0],"status":"lost"}', RobotState, "one of"),
+    (b'{"type":"WorldInfo","v":1,"width":8,"height":8,"cell_size_m":NaN,"home_lat":0,"home_lon":0,"home_alt_m":0}',
+     WorldInfo, "NaN"),
+    (b'{"type":"WorldInfo","v":1,"width":8,"height":8,"cell_size_m":1,"home_lat":0,"home_lon":0,"home_alt_m":1e999}',
+     WorldInfo, "finite"),
+    (b'{"type":"WorldInfo","v":1,"width":8,"height":8,"cell_size_m":0,"home_lat":0,"home_lon":0,"home_alt_m":0}',
+     WorldInfo, "cell_size_m"),
+    (b'{"type":"Plan","v":1,"x":' + b"[" * 100_000, Plan, "deeper than"),
+    (_plan(x=json.loads("[" * 40 + "]" * 40)), Plan, "'x' nests deeper"),
+    (b'{"type":"Record","v":1,"ticks":1,"collisions":0,"refused":[],"executed":{"07":[]},"truth":{}}', Record,
+     "Record.executed key"),
+    (_plan(plan_id="\ud800"), Plan, "surrogate"),
+    ('{"type":"MissionEnd","v":1,"completed":true}'.encode("utf-16"), MissionEnd, "not UTF-8"),
+    (b'{"type":"Plan","v":1,"robot":' + b"1" * 5000 + b"}", Plan, "not JSON"),
+    (b" " * (m.MAX_MESSAGE_BYTES + 1), Plan, "over the limit"),
+])
+def test_malformed_values_are_refused(payload, cls, needle):
+    with pytest.raises(ProtocolError, match=needle) as exc:
+        decode(payload, cls)
+    assert "\n" not in str(exc.value)
+
+
+def _nested(levels: int):
+    value = 0
+    for _ in range(levels):
+        value = [value]
+    return value
+
+
+def test_the_depth_limit_counts_the_whole_message():
+    def record(**kw) -> bytes:
+        return json.dumps({"type": "Record", "v": 1, "ticks": 0, "collisions": 0, "refused": [], "executed": {},
+                           "truth": {}, **kw}).encode()
+    # The message's own object is level 1 and truth level 2, so what truth holds may nest MAX_DEPTH - 2 more.
+    assert decode(record(truth={"a": _nested(m.MAX_DEPTH - 2)}), Record)
+    assert decode(record(new=_nested(m.MAX_DEPTH - 1)), Record)
+    with pytest.raises(ProtocolError, match="Record.truth"):
+        decode(record(truth={"a": _nested(m.MAX_DEPTH - 1)}), Record)
+    with pytest.raises(ProtocolError, match="'new' nests deeper"):
+        decode(record(new=_nested(m.MAX_DEPTH)), Record)
+
+
+def test_camera_frame_limits_cover_head_and_image():
+    f = CameraFrame(width=4, height=3, fx=1.5, fy=1.5, cx=2, cy=1.5, north_m=0, east_m=0, down_m=-20, yaw_rad=0,
+                    time_s=0, png=b"\x89PNG")
+    head = encode(f).partition(b"\0")[0]
+    assert decode(head + b"\0" + b"x" * m.MAX_IMAGE_BYTES, CameraFrame).png == b"x" * m.MAX_IMAGE_BYTES
+    with pytest.raises(ProtocolError, match="over the limit"):
+        decode(head + b"\0" + b"x" * (m.MAX_IMAGE_BYTES + 1), CameraFrame)
+    with pytest.raises(ProtocolError, match="CameraFrame.fx"):
+        decode(encode(dataclasses.replace(f, fx=0.0)), CameraFrame)
+
+
+def test_shipped_schemas_are_what_the_messages_generate():
+    assert stale_files() == [], "run: python -m protocol.schemas --write"
+    assert sorted(p.name for p in SCHEMA_DIR.glob("*.schema.json")) == sorted(schema_files())
+
+
+def test_shipped_schemas_accept_every_message_and_refuse_a_bad_one():
+    jsonschema = pytest.importorskip("jsonschema")
+    from message_strategies import TYPES, messages
+
+    shipped = {cls: json.loads((SCHEMA_DIR / f"{cls.__name__}.schema.json").read_text()) for cls in TYPES}
+    for schema in shipped.values():
+        jsonschema.Draft202012Validator.check_schema(schema)
+    validators = {cls: jsonschema.Draft202012Validator(schema) for cls, schema in shipped.items()}
+
+    @settings(max_examples=25, deadline=None, derandomize=True)
+    @given(st.data())
+    def check(data):
+        for cls in TYPES:
+            head = encode(data.draw(messages(cls))).partition(b"\0")[0]  # a CameraFrame's schema covers its JSON
+            validators[cls].validate(json.loads(head))
+
+    check()
+    for bad in (_plan(robot=-1), _plan(goal=[0, m.MAX_GRID_SIDE]), _plan(path=[[0, 0, 0]]), _plan(v=2)):
+        assert not validators[Plan].is_valid(json.loads(bad))
+
+
 def test_keys_and_ids():
     k = Keys("f1")
     assert k.plan(7) == "uavr/f1/robot/7/plan"
     assert robot_id_from_key(k.state(12)) == 12
     assert robot_id_from_key(k.alive_robot(3)) == 3
     assert robot_id_from_key(k.tick) is None
+    for bad in ("²", "007", "1" * 5000, "-1", "1.0", ""):
+        assert robot_id_from_key(f"uavr/f1/robot/{bad}/state") is None
     with pytest.raises(Exception):
         Keys("bad/fleet")
 

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from protocol.errors import PlanningError
+from protocol.errors import MapError, PlanningError
 from protocol.grid import on_grid
 from protocol.mapfile import format_rows, parse_rows
 
@@ -128,12 +128,15 @@ def plan_from_dict(d: Any, name: str = "plan") -> LoadedPlan:
     if not isinstance(m, dict) or not isinstance(m.get("rows"), list) \
             or not all(isinstance(r, str) for r in m["rows"]):
         raise PlanningError(f"{name}: 'map' must hold 'rows', a list of strings")
-    free = parse_rows(m["rows"], name)
+    try:
+        free = parse_rows(m["rows"], name)
+    except MapError as exc:  # a plan file's reader promises PlanningError, whatever part is wrong
+        raise PlanningError(str(exc)) from None
     h, w = free.shape
     if (m.get("width", w), m.get("height", h)) != (w, h):
         raise PlanningError(f"{name}: map says {m.get('width')}x{m.get('height')}, rows are {w}x{h}")
     conn = d.get("connectivity", 4)
-    if conn not in (4, 8):
+    if type(conn) is not int or conn not in (4, 8):
         raise PlanningError(f"{name}: connectivity must be 4 or 8, got {conn!r}")
     robots = d.get("robots")
     if not isinstance(robots, list) or not robots:
@@ -158,6 +161,9 @@ def plan_from_dict(d: Any, name: str = "plan") -> LoadedPlan:
         paths.append(path)
     if len(set(ids)) != len(ids):
         raise PlanningError(f"{name}: robot ids are not distinct")
+    for key in ("metrics", "timings"):
+        if not isinstance(d.get(key) or {}, dict):
+            raise PlanningError(f"{name}: {key!r} must be an object")
     return LoadedPlan(free=free, ids=ids, starts=starts, goals=goals, paths=paths, connectivity=conn,
                       planner=str(d.get("planner", "")), map_name=str(m.get("name", "")),
                       metrics=dict(d.get("metrics") or {}), timings=dict(d.get("timings") or {}))
@@ -176,6 +182,10 @@ def read_plan(path: str | FsPath, validate: bool = True) -> LoadedPlan:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise PlanningError(f"{path}: not JSON (line {exc.lineno}: {exc.msg})") from None
+    except ValueError:  # an integer of more digits than Python converts
+        raise PlanningError(f"{path}: not JSON (a number too long)") from None
+    except RecursionError:  # the parser recurses per level of nesting
+        raise PlanningError(f"{path}: not a plan (JSON nested too deeply)") from None
     plan = plan_from_dict(data, str(path))
     if validate:
         check(plan.problem, plan.paths)
