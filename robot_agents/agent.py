@@ -21,6 +21,7 @@ from typing import Any, Callable, Sequence
 from protocol.config import add_session_arguments, session_config
 from protocol.errors import ProtocolError, UavRobotsError
 from protocol.keys import Keys, robot_id_from_key
+from protocol.log import Throttled
 from protocol.messages import (Done, MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Plan, Tick, decode,
                                encode)
 from protocol.process import Lifecycle
@@ -89,6 +90,7 @@ class RobotPool(Lifecycle):
         self._uav_seen = False
         self._worker = threading.Thread(target=self._loop, name="robot-pool", daemon=True)
         self.label = format_ids(list(self.machines))
+        self.dropped = Throttled(f"robots {self.label}")   # undecodable or foreign messages: counted, rarely said
         self.faults = {f.robot: f for f in faults if f.robot in self.machines}
         self.dead: set[int] = set()
         self._tokens: dict[int, Any] = {}
@@ -123,7 +125,7 @@ class RobotPool(Lifecycle):
         try:
             end = decode(payload, MissionEnd)
         except ProtocolError as exc:
-            _warn(f"robots {self.label}: ignored mission end: {exc}")
+            self.dropped(f"ignored mission end: {exc}")
             return
         self.finish("mission ended" + (" (completed)" if end.completed else f": {end.reason or 'aborted'}"))
 
@@ -153,7 +155,7 @@ class RobotPool(Lifecycle):
                 else:
                     self._on_tick(data)
             except ProtocolError as exc:
-                _warn(f"robots {self.label}: ignored {kind}: {exc}")
+                self.dropped(f"ignored {kind}: {exc}")
             except Exception as exc:  # noqa: BLE001 - the pool must outlive one bad message
                 if not self.stop.is_set():
                     _warn(f"robots {self.label}: {kind} failed: {exc}")
@@ -241,10 +243,10 @@ class RobotPool(Lifecycle):
             try:
                 reply = decode(raw, MoveBatchResult)
             except ProtocolError as exc:
-                _warn(f"robots {self.label}: ignored move results: {exc}")
+                self.dropped(f"ignored move results: {exc}")
                 continue
             if reply.tick != k:
-                _warn(f"robots {self.label}: ignored move results for tick {reply.tick}")
+                self.dropped(f"ignored move results for tick {reply.tick}")
                 continue
             for robot, accepted, cell, reason in reply.results:
                 if robot in steps:
@@ -256,11 +258,11 @@ class RobotPool(Lifecycle):
             try:
                 res = decode(raw, MoveResult)
             except ProtocolError as exc:
-                _warn(f"robot {robot}: ignored move result: {exc}")
+                self.dropped(f"robot {robot}: ignored move result: {exc}")
                 continue
             if res.robot == robot and res.tick == tick:
                 return res
-            _warn(f"robot {robot}: ignored move result for robot {res.robot} tick {res.tick}")
+            self.dropped(f"robot {robot}: ignored move result for robot {res.robot} tick {res.tick}")
         return None
 
 
