@@ -47,7 +47,7 @@ def add_uav_arguments(p: argparse.ArgumentParser) -> None:
                    help="seconds a robot may take to report a tick before it counts as stalled (default 10)")
     p.add_argument("--monitor-every", type=int, default=None, metavar="K",
                    help="while the robots move, one image every K ticks, checked against the plan "
-                        "(default 25; 0: never)")
+                        "(default: automatic, at most 20 %% of the execution time; 0: never)")
     p.add_argument("--tick-rate", type=float, default=0.0, metavar="HZ",
                    help="at most this many ticks per second, as robots that need time to cross a cell "
                         "(default 0: as fast as the fleet reports)")
@@ -64,7 +64,7 @@ def uav_command(a: argparse.Namespace) -> int:
                         time_limit_s=a.time_limit, fallback=not a.no_fallback, seed=a.seed,
                         out=Path(a.out) if a.out else None, tick_timeout_s=a.tick_timeout,
                         tick_rate_hz=a.tick_rate,
-                        **({} if a.monitor_every is None else {"monitor_every": a.monitor_every}))
+                        monitor_every=a.monitor_every)
     report = Mission(cfg).run()
     print(summary(report, cfg.out), flush=True)
     return exit_code(report)

@@ -34,7 +34,8 @@ ABORT_LAND_TIMEOUT_S = 60.0
 RELOOK_ROUNDS = 2          # closer looks at markers whose id did not decode
 RELOOK_MAX_CELLS = 20
 RELOOK_MIN_ALT_M = 3.0
-MONITOR_EVERY = 25         # ticks between monitoring images (see docs/protocol.md, *Faults and recovery*)
+MONITOR_FIRST = 25         # auto monitoring: the first image after this many ticks ...
+MONITOR_SHARE = 0.2        # ... then whenever the images so far cost at most this share of execution time
 
 
 @dataclass
@@ -55,7 +56,7 @@ class MissionConfig:
     startup_timeout_s: float = 30.0
     tick_timeout_s: float = 10.0
     tick_rate_hz: float = 0.0          # at most this many ticks per second (0: as fast as the fleet goes)
-    monitor_every: int = MONITOR_EVERY  # an image every this many ticks while the robots move (0: never)
+    monitor_every: int | None = None   # an image every this many ticks while robots move (0: never; None: auto)
     min_px_per_cell: float = 20.0
 
 
@@ -398,6 +399,7 @@ class Mission:
         self._status("executing", tick=0, ticks=self.plan.end_tick, robots=len(self.ids), message="")
         self.progress.phase("execute", f"{self.plan.end_tick} ticks, {len(self.ids)} robots in lockstep")
         period = 1.0 / self.cfg.tick_rate_hz if self.cfg.tick_rate_hz > 0 else 0.0
+        self._exec_t0 = time.perf_counter()
         next_at = time.monotonic()
         while self.tick < self.plan.end_tick:
             self._check_vehicle()
@@ -416,7 +418,7 @@ class Mission:
                     off = [r for r in plan.ids if self.fleet.cells.get(r) != plan.cell(r, k)]
                 if off:
                     faults = {"deviation": off}
-            if not faults and self.cfg.monitor_every and k % self.cfg.monitor_every == 0:
+            if not faults and self._monitor_due(k):
                 off = self._monitor(k)
                 if off:
                     faults = {"deviation": off}
@@ -435,6 +437,19 @@ class Mission:
                     seq=self._next())))
         self.ticks = self.tick
         self.clock.lap("execute")
+
+    def _monitor_due(self, k: int) -> bool:
+        every = self.cfg.monitor_every
+        if every is not None:
+            return every > 0 and k % every == 0
+        # Auto: the images may take at most MONITOR_SHARE of the execution time. An image costs what
+        # the last one did, so the next is due once the time since execution began is that large.
+        if k < MONITOR_FIRST:
+            return False
+        spent = self.clock.timings.get("monitor", 0.0)
+        last = spent / self.monitored if self.monitored else 0.0
+        running = time.perf_counter() - self._exec_t0
+        return (spent + last) <= MONITOR_SHARE * running
 
     def _monitor(self, k: int) -> list[int]:
         """One image from where the UAV hovers, taken while the fleet holds after tick k: robots seen

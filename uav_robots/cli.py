@@ -32,7 +32,7 @@ def _add_run(sub) -> None:
                         "(it raises Done at its start and stops)")
     p.add_argument("--monitor-every", type=int, default=None, metavar="K",
                    help="while the robots move, the UAV takes an image every K ticks and checks every robot "
-                        "it sees against the plan (default 25; 0: never)")
+                        "it sees against the plan (default: automatic, at most 20 %% of the execution time; 0: never)")
     p.add_argument("--tick-timeout", type=float, default=10.0, metavar="S",
                    help="seconds a robot may take to report a tick before it counts as stalled (default 10)")
     p.add_argument("--tick-rate", type=float, default=0.0, metavar="HZ",
