@@ -136,9 +136,9 @@ class FakeUav(Waiter):
         return self.seq
 
     def plan(self, robot: int, plan_id: str, path: list[tuple[int, int]], goal: tuple[int, int] | None = None,
-             for_robot: int | None = None) -> None:
+             for_robot: int | None = None, start_tick: int = 0) -> None:
         msg = Plan(robot=robot if for_robot is None else for_robot, plan_id=plan_id, path=list(path),
-                   goal=goal if goal is not None else path[-1], seq=self._next())
+                   goal=goal if goal is not None else path[-1], start_tick=start_tick, seq=self._next())
         self.transport.put(self.keys.plan(robot), encode(msg))
 
     def tick(self, k: int, ticks: int, plan_id: str) -> None:

@@ -172,3 +172,34 @@ def test_restart_gets_a_fresh_token(spawn, uav, rid, timeout):
     assert uav.until(lambda: rid not in uav.alive, timeout), "the dead robot's token did not go away"
     spawn()
     assert uav.until(lambda: rid in uav.alive, timeout)
+
+
+def test_a_repair_plan_starts_at_its_tick_and_is_switched_to_at_once(robot, uav, world, rid, timeout):
+    """docs/protocol.md, Plans and ticks / Faults and recovery: path[i] is the cell at tick start_tick + i;
+    a repair plan (start_tick > 0) names where the robot stands, whatever the robot believed."""
+    first = [(2, 2), (3, 2), (4, 2), (5, 2), (6, 2)]
+    _accepted(uav, rid, "p-first", first, timeout)
+    _run_ticks(uav, world, rid, "p-first", first, 2, timeout)          # now at (4, 2) after tick 2
+    with world.cv:
+        world.positions[rid] = (4, 3)       # it slipped: the UAV's camera sees it one cell off
+    repair = [(4, 3), (4, 4), (5, 4)]
+    uav.plan(rid, "p-repair", repair, start_tick=2)
+    ack = uav.ack_for(rid, "p-repair", timeout)
+    assert ack is not None and ack.ok, f"a repair plan from where the UAV sees the robot was refused: {ack}"
+    for k in (3, 4, 5):
+        uav.tick(k, 4, "p-repair")
+        st = uav.state_at(rid, k, timeout)
+        assert st is not None, f"no RobotState for tick {k}"
+        (req,) = world.requests_for(rid, k)
+        want = (_path_at(repair, k - 3), _path_at(repair, k - 2))
+        assert (tuple(req.frm), tuple(req.to)) == want, f"tick {k}: asked {req.frm} -> {req.to}, expected {want}"
+        assert st.plan_id == "p-repair"
+
+
+def test_a_repair_plan_for_a_past_tick_is_refused(robot, uav, world, rid, timeout):
+    path = [(2, 2), (3, 2), (4, 2)]
+    _accepted(uav, rid, "p-now", path, timeout)
+    _run_ticks(uav, world, rid, "p-now", path, 3, timeout)
+    uav.plan(rid, "p-past", [(4, 2), (4, 3)], start_tick=1)
+    ack = uav.ack_for(rid, "p-past", timeout)
+    assert ack is not None and not ack.ok, "a plan starting before the last executed tick was accepted"
