@@ -202,6 +202,16 @@ def test_a_silent_robot_is_taken_out_of_the_plan(uav_options, tmp_path):
     _no_harness_trouble(run)
 
 
+def test_a_done_the_camera_contradicts_is_no_success(uav_options, tmp_path):
+    # It raises Done on its goal the moment it has a plan, and never moves: the floor says otherwise.
+    liar = uav_options.robots - 1
+    run = run_mission(uav_options, Misbehaviour(liar=frozenset({liar})), tmp_path)
+    _exited(run, uav_options)
+    assert run.code != 0, f"the UAV exited 0 although robot {liar} never left its start\n{run.tail()}"
+    assert run.record.collisions == 0
+    _no_harness_trouble(run)
+
+
 def test_garbage_on_robot_keys_is_dropped(uav_options, tmp_path):
     noisy = uav_options.robots - 1
     run = run_mission(uav_options, Misbehaviour(garbage=frozenset({noisy})), tmp_path)

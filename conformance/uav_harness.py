@@ -69,6 +69,7 @@ class Misbehaviour:
     silent_from: dict[int, int] = field(default_factory=dict)  # robot -> first tick it executes but never reports
     late: frozenset[int] = frozenset()         # declare the liveliness token only when the suite says so
     garbage: frozenset[int] = frozenset()      # also put garbage, wrong-version and forged messages on its keys
+    liar: frozenset[int] = frozenset()         # raise Done on its goal as soon as it has a plan, never move or report
 
 
 # ---------------------------------------------------------------- processes
@@ -404,6 +405,8 @@ class FakeFleet(Waiter):
             robot.acked[plan.plan_id] = ok
             self.log.acks.append((time.monotonic(), ack))
         self._put(robot, self.keys.ack(rid), ack)
+        if ok and rid in self.behaviour.liar:
+            self._put(robot, self.keys.done(rid), Done(robot=rid, tick=1, cell=tuple(plan.goal)))
 
     def _target(self, robot: FakeRobot, tick: Tick) -> Cell:
         plan = robot.plan
@@ -419,7 +422,8 @@ class FakeFleet(Waiter):
         if tick.k <= self.seen_tick:
             return  # a resent or late tick: already executed
         with self.cv:
-            moves = [(r.rid, r.cell, self._target(r, tick)) for r in self.robots.values()]
+            moves = [(r.rid, r.cell, self._target(r, tick)) for r in self.robots.values()
+                     if r.rid not in self.behaviour.liar]
         # All robots' moves in one query: the world judges a tick once every robot has asked.
         replies = self.transport.request(self.keys.move, encode(MoveBatch(tick=tick.k, moves=moves)), MOVE_TIMEOUT_S)
         if not replies:

@@ -49,3 +49,22 @@ def test_a_uav_without_a_tick_barrier_fails_the_suite(tmp_path):
     assert "1 failed" in run.stdout, run.stdout[-3000:]
     assert "FAILED " + SUITE + "::test_the_lockstep_barrier_holds" in run.stdout
     assert "before robots [0, 1, 2] reported tick 1" in run.stdout
+
+
+def test_a_uav_that_believes_every_done_fails_the_suite(tmp_path):
+    # Our UAV with its verification removed: every robot that raised Done counts as arrived.
+    credulous = tmp_path / "credulous_uav.py"
+    credulous.write_text(
+        "import sys\n"
+        "from protocol.process import command_main\n"
+        "from uav_agent.cli import build_parser\n"
+        "from uav_agent.mission import Mission\n"
+        "def believe(self):\n"
+        "    self.verified = {r: r in self.fleet.done for r in self.ids}\n"
+        "Mission._verify = believe\n"
+        "Mission._off_goal = lambda self: []\n"
+        "sys.exit(command_main(build_parser))\n")
+    cmd = f"{shlex.quote(sys.executable)} {shlex.quote(str(credulous))} {UAV_ARGS}"
+    run = _suite("--uav-cmd", cmd, "-k", "contradicts")
+    assert run.returncode == 1, run.stdout[-3000:]
+    assert "1 failed" in run.stdout and "never left its start" in run.stdout, run.stdout[-3000:]
