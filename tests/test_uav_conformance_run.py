@@ -31,19 +31,23 @@ def test_a_uav_that_never_comes_up_fails_the_suite():
     assert "the UAV was still running after 2 s" in run.stdout
 
 
+def _broken_uav(tmp_path, name: str, patch: str) -> str:
+    """Our UAV with one rule broken by `patch` (Python run before its main), as a --uav-cmd."""
+    script = tmp_path / f"{name}.py"
+    script.write_text("import sys\n"
+                      "from protocol.process import command_main\n"
+                      "from uav_agent.cli import build_parser\n"
+                      "from uav_agent.fleet import FleetLink\n"
+                      "from uav_agent.mission import Mission\n"
+                      + patch +
+                      "sys.exit(command_main(build_parser))\n")
+    return f"{shlex.quote(sys.executable)} {shlex.quote(str(script))} {UAV_ARGS}"
+
+
 def test_a_uav_without_a_tick_barrier_fails_the_suite(tmp_path):
-    # Our UAV with its barrier removed: it puts tick k+1 without waiting for the robots' states for tick k.
-    hasty = tmp_path / "hasty_uav.py"
-    hasty.write_text(
-        "import sys\n"
-        "from uav_agent.fleet import FleetLink\n"
-        "from protocol.process import command_main\n"
-        "from uav_agent.cli import build_parser\n"
-        "from uav_agent.mission import Mission\n"
-        "FleetLink.wait_tick = lambda self, robots, k, timeout, interrupt: {}\n"
-        "Mission._recover = lambda self, k, faults: None\n"
-        "sys.exit(command_main(build_parser))\n")
-    cmd = f"{shlex.quote(sys.executable)} {shlex.quote(str(hasty))} {UAV_ARGS}"
+    # It puts tick k+1 without waiting for the robots' states for tick k.
+    cmd = _broken_uav(tmp_path, "hasty_uav", "FleetLink.wait_tick = lambda self, robots, k, timeout, interrupt: {}\n"
+                                             "Mission._recover = lambda self, k, faults: None\n")
     run = _suite("--uav-cmd", cmd, "-k", "barrier_holds")
     assert run.returncode == 1, run.stdout[-3000:]
     assert "1 failed" in run.stdout, run.stdout[-3000:]
@@ -52,19 +56,11 @@ def test_a_uav_without_a_tick_barrier_fails_the_suite(tmp_path):
 
 
 def test_a_uav_that_believes_every_done_fails_the_suite(tmp_path):
-    # Our UAV with its verification removed: every robot that raised Done counts as arrived.
-    credulous = tmp_path / "credulous_uav.py"
-    credulous.write_text(
-        "import sys\n"
-        "from protocol.process import command_main\n"
-        "from uav_agent.cli import build_parser\n"
-        "from uav_agent.mission import Mission\n"
-        "def believe(self):\n"
-        "    self.verified = {r: r in self.fleet.done for r in self.ids}\n"
-        "Mission._verify = believe\n"
-        "Mission._off_goal = lambda self: []\n"
-        "sys.exit(command_main(build_parser))\n")
-    cmd = f"{shlex.quote(sys.executable)} {shlex.quote(str(credulous))} {UAV_ARGS}"
+    # Its verification removed: every robot that raised Done counts as arrived.
+    cmd = _broken_uav(tmp_path, "credulous_uav", "def believe(self):\n"
+                                                 "    self.verified = {r: r in self.fleet.done for r in self.ids}\n"
+                                                 "Mission._verify = believe\n"
+                                                 "Mission._off_goal = lambda self: []\n")
     run = _suite("--uav-cmd", cmd, "-k", "contradicts")
     assert run.returncode == 1, run.stdout[-3000:]
     assert "1 failed" in run.stdout and "never left its start" in run.stdout, run.stdout[-3000:]
