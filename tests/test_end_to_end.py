@@ -10,6 +10,7 @@ import psutil
 import pytest
 
 from protocol.mapfile import parse_rows
+from uav_agent.mission import load_report
 from uav_agent.planning.types import Problem
 from uav_agent.planning.validator import validate
 
@@ -61,7 +62,7 @@ def test_default_mission(tmp_path):
     res = _run(["run", "--out", str(tmp_path)], timeout=180)
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
     assert "mission COMPLETED" in res.stdout
-    report = json.loads((tmp_path / "report.json").read_text())
+    report = load_report(tmp_path)
     _check_report(report)
     assert report["robots"] == 8
     for name in ("overhead.png", "paths.png", "replay.gif"):
@@ -72,13 +73,28 @@ def test_default_mission(tmp_path):
     print(f"default mission wall time {time.monotonic() - t0:.1f} s")
 
 
+def test_json_and_quiet_for_scripts(tmp_path):
+    res = _run(["run", "--json"], timeout=180)
+    assert res.returncode == 0, res.stderr[-2000:]
+    lines = res.stdout.strip().splitlines()
+    assert len(lines) == 1, lines[:5]
+    summary = json.loads(lines[0])
+    assert summary["completed"] is True and summary["exit_code"] == 0 and summary["out"] is None
+    assert all(summary["verified"].values()) and summary["timings"]["wall_total"] > 0
+    res = _run(["run", "--quiet", "--out", str(tmp_path)], timeout=180)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert not any(line.startswith("[") for line in res.stdout.splitlines()), res.stdout[:500]
+    assert "mission COMPLETED" in res.stdout
+    assert (tmp_path / "report.json").stat().st_size < (tmp_path / "details.json").stat().st_size + 20_000
+
+
 def test_noisy_camera_needs_a_closer_look(tmp_path):
     """Noise, blur and uneven light make some markers unreadable from survey height: the UAV flies lower."""
     res = _run(["run", "--map", "warehouse:blocks_x=4,blocks_y=12", "--robots", "30", "--out", str(tmp_path),
                 "--camera", "width=1280,height=960,noise_std=10,blur_sigma=1.3,lighting=0.3"], timeout=240)
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
     assert "a closer look" in res.stdout
-    report = json.loads((tmp_path / "report.json").read_text())
+    report = load_report(tmp_path)
     _check_report(report)
     survey_images = 4  # this map at 1280x960 and 20 px per cell
     assert report["perceived"]["images"] > survey_images
@@ -154,6 +170,7 @@ def test_paper_setting_450_with_50_robots(tmp_path):
     res = _run(["run", "--map", "warehouse-450", "--robots", "50", "--out", str(tmp_path)], timeout=400)
     wall = time.monotonic() - t0
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
-    report = json.loads((tmp_path / "report.json").read_text())
+    report = load_report(tmp_path)
     _check_report(report)
+    assert (tmp_path / "report.json").stat().st_size <= 200_000, "report.json must stay readable"
     print(f"450x450 / 50 robots wall time {wall:.1f} s, timings {report['timings']}")

@@ -5,7 +5,6 @@ Each test runs `uav-robots run` as a user would, hurts it (signals to robot proc
 """
 from __future__ import annotations
 
-import json
 import queue
 import re
 import signal
@@ -22,6 +21,7 @@ from protocol.config import client_config
 from protocol.keys import Keys
 from protocol.messages import Done, encode
 from protocol.transport import ZenohTransport
+from uav_agent.mission import load_report
 
 CLI = [sys.executable, "-m", "uav_robots", "run"]
 
@@ -75,9 +75,8 @@ class Run:
             if self.proc.poll() is None:
                 self.proc.kill()
                 self.proc.wait(10)
-        report_path = self.out / "report.json"
-        assert report_path.exists(), "".join(self.lines)[-4000:]
-        return code, json.loads(report_path.read_text())
+        assert (self.out / "report.json").exists(), "".join(self.lines)[-4000:]
+        return code, load_report(self.out)
 
 
 def _check_truth(report: dict, lost: set[int]) -> None:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +46,9 @@ def add_uav_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", help="directory for report.json and images")
     p.add_argument("--tick-timeout", type=float, default=10.0,
                    help="seconds a robot may take to report a tick before it counts as stalled (default 10)")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--summary", choices=("text", "json", "none"), default="text",
+                   help="the end of mission summary: lines for a person, one JSON object (report.json's), or none")
     p.add_argument("--monitor-every", type=int, default=None, metavar="K",
                    help="while the robots move, one image every K ticks, checked against the plan "
                         "(default: automatic, at most 20 %% of the execution time; 0: never)")
@@ -55,7 +59,8 @@ def add_uav_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def uav_command(a: argparse.Namespace) -> int:
-    from .mission import Mission, MissionConfig, exit_code, summary
+    from .mission import Mission, MissionConfig, exit_code, split_report, summary
+    from .progress import Progress
     from .planning.assignment import DEFAULT_ASSIGNMENT
 
     cfg = MissionConfig(fleet=a.fleet, robots=a.robots, listen=a.listen, connect=a.connect,
@@ -65,8 +70,11 @@ def uav_command(a: argparse.Namespace) -> int:
                         out=Path(a.out) if a.out else None, tick_timeout_s=a.tick_timeout,
                         tick_rate_hz=a.tick_rate,
                         monitor_every=a.monitor_every)
-    report = Mission(cfg).run()
-    print(summary(report, cfg.out), flush=True)
+    report = Mission(cfg, Progress(enabled=not a.quiet)).run()
+    if a.summary == "text":
+        print(summary(report, cfg.out), flush=True)
+    elif a.summary == "json":
+        print(json.dumps(split_report(report)[0], separators=(",", ":")), flush=True)
     return exit_code(report)
 
 

@@ -685,8 +685,7 @@ class Mission:
         try:
             self._fill_report(self._record(), "aborted", reason)
             if self.cfg.out is not None:
-                self.cfg.out.mkdir(parents=True, exist_ok=True)
-                (self.cfg.out / "report.json").write_text(json.dumps(self.report, indent=1))
+                write_report(self.cfg.out, self.report)
         except Exception as exc:  # noqa: BLE001 - the report must not hide the abort's own error
             self.progress.phase("abort", f"could not write the report: {exc}")
 
@@ -698,9 +697,56 @@ def exit_code(report: dict[str, Any]) -> int:
     return EXIT_DEGRADED if report.get("outcome") == "degraded" else EXIT_ABORTED
 
 
+DETAILS = "details.json"   # the per-tick and per-cell data, beside the compact report.json
+PLAN = "plan.json"         # the first plan, in the plan file format (uav-robots plan --out)
+
+
+def split_report(report: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any] | None]:
+    """(report.json, details.json, plan.json): what a person reads apart from the bulk a program reads."""
+    compact = {k: v for k, v in report.items() if k not in ("executed", "refused")}
+    plan = report.get("plan")
+    if plan is not None:
+        compact["plan"] = {**{k: v for k, v in plan.items() if k not in ("map", "robots")}, "file": PLAN,
+                           "robots": [{"id": r["id"], "start": r["start"], "goal": r["goal"]} for r in plan["robots"]]}
+    rows = {}
+    for part in ("perceived", "truth"):
+        if report.get(part):
+            compact[part] = {k: v for k, v in report[part].items() if k != "rows"}
+            rows[part] = report[part].get("rows")
+    if rows.get("perceived") is not None and rows.get("truth") is not None:
+        compact["perceived"]["map_matches_truth"] = rows["perceived"] == rows["truth"]
+    details = {"format": "uav-robots-details/1", "executed": report.get("executed", {}),
+               "refused": report.get("refused", []), "rows": rows}
+    compact["details"] = DETAILS
+    return compact, details, plan
+
+
+def write_report(out: Path, report: dict[str, Any]) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    compact, details, plan = split_report(report)
+    (out / "report.json").write_text(json.dumps(compact, indent=1))
+    (out / DETAILS).write_text(json.dumps(details, separators=(",", ":")))
+    if plan is not None:
+        (out / PLAN).write_text(json.dumps(plan, separators=(",", ":")))
+
+
+def load_report(out: Path) -> dict[str, Any]:
+    """report.json with details.json and plan.json put back in: the whole record of a mission."""
+    report = json.loads((out / "report.json").read_text())
+    details = json.loads((out / DETAILS).read_text()) if (out / DETAILS).exists() else {}
+    report["executed"] = details.get("executed", {})
+    report["refused"] = details.get("refused", [])
+    for part, rows in details.get("rows", {}).items():
+        if report.get(part) is not None:
+            report[part]["rows"] = rows
+    if (out / PLAN).exists():
+        report["plan"] = json.loads((out / PLAN).read_text())
+    return report
+
+
 def write_outputs(out: Path, report: dict[str, Any], frames: list[CameraFrame], free, result,
                   ids: list[int]) -> None:
-    """report.json, overhead.png (a captured image), paths.png and replay.gif into `out`."""
+    """report.json (+ details.json, plan.json), overhead.png (a captured image), paths.png and replay.gif."""
     from . import visualize
 
     out.mkdir(parents=True, exist_ok=True)
@@ -710,7 +756,7 @@ def write_outputs(out: Path, report: dict[str, Any], frames: list[CameraFrame], 
     executed = {int(k): [tuple(c) for c in v] for k, v in report["executed"].items()}
     goals = {rid: tuple(g) for rid, g in zip(ids, result.goals)}
     visualize.replay_gif(out / "replay.gif", free, executed, goals)
-    (out / "report.json").write_text(json.dumps(report, indent=1))
+    write_report(out, report)
 
 
 def summary(report: dict[str, Any], out: Path | None) -> str:
@@ -743,5 +789,5 @@ def summary(report: dict[str, Any], out: Path | None) -> str:
         "  time: " + ", ".join(f"{k} {v:.2f}s" for k, v in t.items()),
     ]
     if out:
-        lines.append(f"  outputs: {out}/report.json, overhead.png, paths.png, replay.gif")
+        lines.append(f"  outputs: {out}/report.json, details.json, plan.json, overhead.png, paths.png, replay.gif")
     return "\n".join(lines)

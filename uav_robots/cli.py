@@ -37,6 +37,10 @@ def _add_run(sub) -> None:
                    help="seconds a robot may take to report a tick before it counts as stalled (default 10)")
     p.add_argument("--tick-rate", type=float, default=0.0, metavar="HZ",
                    help="at most this many ticks per second (default 0: as fast as the fleet reports)")
+    out = p.add_mutually_exclusive_group()
+    out.add_argument("--quiet", action="store_true", help="no progress lines: only the summary (and errors)")
+    out.add_argument("--json", action="store_true",
+                     help="print only the summary, as one JSON object (report.json's, with the run's wall time)")
     p.add_argument("--timeout", type=float, default=900.0, help="give up after this many seconds")
     p.set_defaults(func=lambda a: importlib.import_module("uav_robots.launcher").run(a))
 

@@ -90,7 +90,9 @@ class Launcher:
                                   "--tick-rate", str(a.tick_rate), "--tick-timeout", str(a.tick_timeout),
                                   *(["--monitor-every", str(a.monitor_every)] if a.monitor_every is not None else []),
                                   *(["--planner", a.planner] if a.planner else []),
-                                  *(["--no-fallback"] if a.no_fallback else [])], to_log=False)
+                                  *(["--no-fallback"] if a.no_fallback else []),
+                                  *(["--quiet"] if a.quiet or a.json else []),
+                                  *(["--summary", "none"] if a.json else [])], to_log=False)
         self._spawn("world", "sim_world", [*common, "--connect", self.endpoint, "--map", a.map,
                               "--robots", str(a.robots), "--seed", str(a.seed),
                               "--connectivity", str(a.connectivity),
@@ -173,8 +175,9 @@ def run(args) -> int:
     launcher = Launcher(args)
     t0 = time.perf_counter()
     code = 1
-    print(f"uav-robots: map {name} ({free.shape[1]}x{free.shape[0]}), {args.robots} robots, fleet {launcher.fleet}, "
-          f"zenoh {launcher.endpoint}, mavlink udp:{launcher.udp}", flush=True)
+    if not (args.quiet or args.json):
+        print(f"uav-robots: map {name} ({free.shape[1]}x{free.shape[0]}), {args.robots} robots, "
+              f"fleet {launcher.fleet}, zenoh {launcher.endpoint}, mavlink udp:{launcher.udp}", flush=True)
     try:
         uav = launcher.start()
         code = launcher.watch(uav, args.timeout)
@@ -194,6 +197,12 @@ def run(args) -> int:
         report["processes"] = launcher.pids()
         report.setdefault("timings", {})["wall_total"] = round(time.perf_counter() - t0, 3)
         report_path.write_text(json.dumps(report, indent=1))
+    if args.json:
+        summary = report if report_path.exists() else {"completed": False, "outcome": "aborted",
+                                                       "reason": f"the UAV exited with code {code}"}
+        print(json.dumps({**summary, "exit_code": code if code in (0, 1, 3, 130) else 1,
+                          "out": str(launcher.out) if kept else None}, separators=(",", ":")), flush=True)
+    elif report_path.exists():
         # The UAV printed the mission's summary; the launcher adds what only it knows.
         print(f"  whole run: {report['timings']['wall_total']:.2f}s wall (process start-up and shut-down "
               f"included), {len(report['processes']['robots'])} robot process(es)"
