@@ -46,28 +46,6 @@ def config_from_file(path: str | Path) -> str:
         raise UavRobotsError(f"cannot read zenoh config {path}: {exc.strerror}") from None
 
 
-def session_config(listen: list[str] | None = None, connect: list[str] | None = None,
-                   config_file: str | Path | None = None) -> str:
-    """What every process opens: a config file if given, else a router on `listen`, else a client of
-    `connect` (default: the hub on this machine)."""
-    if listen and connect:
-        raise UavRobotsError("give --connect or --listen, not both")
-    if config_file:
-        return config_from_file(config_file)
-    if listen:
-        return hub_config(listen)
-    return client_config(connect or [DEFAULT_ENDPOINT])
-
-
-def describe_session(listen: list[str] | None = None, connect: list[str] | None = None,
-                     config_file: str | Path | None = None) -> str:
-    if config_file:
-        return f"config {config_file}"
-    if listen:
-        return f"listening on {','.join(listen)}"
-    return f"connected to {','.join(connect or [DEFAULT_ENDPOINT])}"
-
-
 def add_session_arguments(p: argparse.ArgumentParser, hub: bool = False) -> None:
     """--connect / --listen / --zenoh-config, the same for every process (`hub`: it listens by default)."""
     g = p.add_mutually_exclusive_group()

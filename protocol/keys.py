@@ -13,6 +13,9 @@ ROBOT_ID_DIGITS = len(str(MAX_ROBOT_ID))
 _FLEET_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
 
+DEFAULT_FLEET = "default"   # the fleet of parts started alone without --fleet, as a SITL is
+
+
 def new_fleet_name() -> str:
     return "f" + secrets.token_hex(4)
 

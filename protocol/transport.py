@@ -145,6 +145,7 @@ class ZenohTransport(Transport):
             self.session = zenoh.open(conf)
         except Exception as exc:  # noqa: BLE001
             raise MissionError(f"{name}: cannot open zenoh session: {str(exc).splitlines()[0]}") from None
+        self.where = "zenoh"      # how the session was opened, for log lines (see open_session)
         self._pubs: dict[str, Any] = {}
         self._lock = threading.Lock()
         self._handles: list[Handle] = []
@@ -320,3 +321,40 @@ class MemoryTransport(Transport):
                     if item in lst:
                         lst.remove(item)
         self._mine.clear()
+
+
+def open_session(name: str, listen: list[str] | None = None, connect: list[str] | None = None,
+                 config_file: str | None = None, stop: threading.Event | None = None,
+                 alone: str = "client", wait_s: float = 20.0) -> ZenohTransport:
+    """The Zenoh session of one process, opened so that a signal is answered within about a second.
+
+    A config file or `listen` is opened as given. `connect` is retried in 1 s attempts for up to
+    `wait_s` (a router may come up later), stopping early when `stop` is set. With none of them the
+    process is on its own, as a simulator started alone: `alone="client"` joins the router on this
+    machine, `"router"` becomes it, `"either"` joins one if it answers within a second, else becomes it.
+    """
+    from .config import DEFAULT_ENDPOINT, client_config, config_from_file, hub_config
+
+
+    def opened(config: str, where: str) -> ZenohTransport:
+        t = ZenohTransport(config, name)
+        t.where = where
+        return t
+
+    if config_file:
+        return opened(config_from_file(config_file), f"config {config_file}")
+    if listen or (not connect and alone == "router"):
+        endpoints = listen or [DEFAULT_ENDPOINT]
+        return opened(hub_config(endpoints), f"listening on {', '.join(endpoints)}")
+    endpoints = connect or [DEFAULT_ENDPOINT]
+    deadline = time.monotonic() + (1.0 if not connect and alone == "either" else wait_s)
+    while True:
+        try:
+            return opened(client_config(endpoints, timeout_ms=1000), f"connected to {', '.join(endpoints)}")
+        except MissionError:
+            if stop is not None and stop.is_set():
+                raise MissionError(f"{name}: stopped while waiting for a Zenoh router") from None
+            if time.monotonic() >= deadline:
+                if not connect and alone == "either":
+                    return opened(hub_config([DEFAULT_ENDPOINT]), f"listening on {DEFAULT_ENDPOINT} (no router found)")
+                raise MissionError(f"{name}: no Zenoh router at {', '.join(endpoints)} within {wait_s:g} s") from None

@@ -18,14 +18,14 @@ import sys
 import threading
 from typing import Any, Callable, Sequence
 
-from protocol.config import add_session_arguments, session_config
+from protocol.config import add_session_arguments
 from protocol.errors import ProtocolError, UavRobotsError
-from protocol.keys import Keys, robot_id_from_key
+from protocol.keys import DEFAULT_FLEET, Keys, robot_id_from_key
 from protocol.log import Throttled
 from protocol.messages import (Done, MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Plan, Tick, decode,
                                encode)
 from protocol.process import Lifecycle
-from protocol.transport import Transport, ZenohTransport
+from protocol.transport import Transport, open_session
 
 from .faults import Fault, parse_fault
 from .robot import RobotMachine, Step
@@ -294,7 +294,7 @@ def add_robot_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--id", dest="id", type=int, action="append", default=[], metavar="K",
                    help="a robot id to host (repeat for several)")
     p.add_argument("--ids", default=None, metavar="RANGES", help="robot ids as ranges, e.g. 0-49 or 0-3,7")
-    p.add_argument("--fleet", required=True, help="fleet name: keys live under uavr/<fleet>")
+    p.add_argument("--fleet", default=DEFAULT_FLEET, help=f"fleet name: keys live under uavr/<fleet> (default {DEFAULT_FLEET})")
     add_session_arguments(p)
     p.add_argument("--connectivity", type=int, choices=(4, 8), default=4)
     p.add_argument("--move-timeout", type=float, default=MOVE_TIMEOUT_S, metavar="S",
@@ -312,11 +312,10 @@ def robot_command(args: argparse.Namespace) -> int:
         raise UavRobotsError("robot ids must be non-negative")
     Keys(args.fleet)  # a bad fleet name fails before the session opens
     faults = [parse_fault(f) for f in args.fault]
-    conf = session_config(args.listen, args.connect, args.zenoh_config)
     life = Lifecycle()   # signals stop the pool even while the session is still opening
     life.stop_on_signals()
     stop = life.stop
-    with ZenohTransport(conf, f"robots {format_ids(ids)}") as transport:
+    with open_session(f"robots {format_ids(ids)}", args.listen, args.connect, args.zenoh_config, stop) as transport:
         def ready(pool: RobotPool) -> None:
             noun = "robot" if len(ids) == 1 else "robots"
             print(f"{noun} {pool.label} ready (fleet {args.fleet})", flush=True)

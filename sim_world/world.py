@@ -21,15 +21,15 @@ from typing import Any, Callable
 
 import numpy as np
 
-from protocol.config import add_session_arguments, describe_session, session_config
-from protocol.errors import ProtocolError, UavRobotsError
-from protocol.keys import Keys, robot_id_from_key
+from protocol.config import add_session_arguments
+from protocol.errors import MissionError, ProtocolError, UavRobotsError
+from protocol.keys import DEFAULT_FLEET, Keys, robot_id_from_key
 from protocol.log import Throttled
 from protocol.mapfile import Cell, format_rows, read_scen
 from protocol.messages import (CameraRequest, MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Record,
                                RecordRequest, WorldInfo, WorldInfoRequest, decode, encode)
 from protocol.process import Lifecycle
-from protocol.transport import IncomingQuery, Transport, ZenohTransport
+from protocol.transport import IncomingQuery, Transport, open_session
 from scenarios.maps import place, resolve_map
 
 from .moves import MoveJudge
@@ -257,7 +257,8 @@ class World(Lifecycle):
                                                  home_alt_m=cfg.home_alt_m, time_scale=cfg.time_scale))
             self.vehicle.start()
         if self.transport is None:
-            self.transport = ZenohTransport(self._zenoh_config(), "world")
+            c = self.cfg
+            self.transport = open_session("world", c.listen, c.connect, c.zenoh_config, self.stop, alone="either")
         self.desk = MoveDesk(self.judge, cfg.move_batch_timeout_s)
         t, k = self.transport, self.keys
         self.keep(
@@ -270,9 +271,6 @@ class World(Lifecycle):
             t.watch_alive(k.alive_robots, self._on_robot_alive),
         )
         self.keep(t.announce(k.alive_world))
-
-    def _zenoh_config(self) -> str:
-        return session_config(self.cfg.listen, self.cfg.connect, self.cfg.zenoh_config)
 
     def run(self, poll_s: float = 0.1) -> str:
         """Serve until stopped; returns why it stopped."""
@@ -310,7 +308,7 @@ class World(Lifecycle):
 
     def describe(self) -> str:
         h, w = self.truth.free.shape
-        where = describe_session(self.cfg.listen, self.cfg.connect, self.cfg.zenoh_config)
+        where = getattr(self.transport, "where", "zenoh")
         return (f"fleet {self.cfg.fleet}, map {self.truth.name} {w}x{h}, {len(self.truth.starts)} robots, "
                 f"zenoh {where}, mavlink {self.cfg.mavlink or 'off'}")
 
@@ -509,7 +507,7 @@ def add_world_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robots", type=int, default=8, help="number of robots (and goals)")
     p.add_argument("--seed", type=int, default=0, help="seed of the placement of robots and goals")
     p.add_argument("--scen", default=None, metavar="FILE", help="take starts and goals from a MovingAI .scen")
-    p.add_argument("--fleet", required=True, help="fleet name: keys live under uavr/<fleet>")
+    p.add_argument("--fleet", default=DEFAULT_FLEET, help=f"fleet name: keys live under uavr/<fleet> (default {DEFAULT_FLEET})")
     add_session_arguments(p)
     p.add_argument("--mavlink", default="udpout:127.0.0.1:14540", metavar="URL",
                    help="the vehicle's MAVLink link (pymavlink URL); 'none' runs without a vehicle")
@@ -565,7 +563,12 @@ def world_command(args: argparse.Namespace) -> int:
     world = World(cfg)
     world.stop_on_signals()
     try:
-        world.start()
+        try:
+            world.start()
+        except MissionError:
+            if world.stop.is_set():   # stopped while it was still looking for a router: not an error
+                return 0
+            raise
         print(f"world ready: {world.describe()}", flush=True)
         reason = world.run()
     finally:

@@ -271,3 +271,45 @@ def test_world_leaves_when_the_uav_vanishes_mid_mission():
         finally:
             stop_process(proc)
             uav.close()
+
+
+def _world_alone() -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "sim_world"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, stdin=subprocess.DEVNULL)
+
+
+def test_the_world_alone_is_a_sitl_and_stops_within_a_second():
+    """No arguments: its own router and the default fleet, the vehicle on PX4 SITL's usual port."""
+    from pymavlink import mavutil
+
+    gcs = mavutil.mavlink_connection("udpin:127.0.0.1:14540")
+    proc = _world_alone()
+    try:
+        ready = proc.stdout.readline()
+        assert "world ready" in ready and "fleet default" in ready and "listening on" in ready, ready
+        hb = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=10)
+        assert hb is not None and hb.get_srcComponent() == 1
+        t = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=5) == 0
+        assert time.monotonic() - t < 1.0, f"SIGTERM took {time.monotonic() - t:.2f} s"
+    finally:
+        gcs.close()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_the_world_stops_within_a_second_while_it_waits_for_a_router():
+    proc = subprocess.Popen([sys.executable, "-m", "sim_world", "--connect", "tcp/127.0.0.1:9", "--mavlink", "none"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        time.sleep(2.0)   # imports done, in its connect retries
+        t = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=5) == 0, proc.stdout.read()
+        assert time.monotonic() - t < 1.0, f"SIGTERM took {time.monotonic() - t:.2f} s"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from protocol.config import add_session_arguments
+from protocol.keys import DEFAULT_FLEET
 from protocol.process import one_command
 
 MAVSDK_DEFAULT = "udpin://0.0.0.0:14540"
@@ -38,7 +39,7 @@ def add_uav_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def add_uav_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--fleet", required=True, help="fleet name: keys live under uavr/<fleet>")
+    p.add_argument("--fleet", default=DEFAULT_FLEET, help=f"fleet name: keys live under uavr/<fleet> (default {DEFAULT_FLEET})")
     add_session_arguments(p, hub=True)
     p.add_argument("--mavlink", default=MAVSDK_DEFAULT, help=f"MAVSDK connection URL (default {MAVSDK_DEFAULT})")
     p.add_argument("--robots", type=int, default=None, help="expected fleet size (default: as many as seen)")

@@ -16,13 +16,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from protocol.config import DEFAULT_ENDPOINT, session_config
 from protocol.errors import MissionError, ProtocolError
 from protocol.grid import Cell
 from protocol.keys import Keys
 from protocol.messages import (CameraFrame, CameraRequest, MissionEnd, MissionStatus, Plan, Record, RecordRequest, Tick,
                                WorldInfo, WorldInfoRequest, decode, encode)
-from protocol.transport import Transport, ZenohTransport
+from protocol.transport import Transport, open_session
 
 from .events import EventLog
 from .fleet import FleetLink
@@ -72,9 +71,8 @@ class _Clock:
 
 
 def _transport(cfg: MissionConfig) -> Transport:
-    # The UAV is the hub unless told to join a router.
-    hub = cfg.listen or ([] if cfg.connect or cfg.zenoh_config else [DEFAULT_ENDPOINT])
-    return ZenohTransport(session_config(hub, cfg.connect, cfg.zenoh_config), "uav")
+    # Alone, the UAV joins a router already on this machine (a world started first) or becomes it.
+    return open_session("uav", cfg.listen, cfg.connect, cfg.zenoh_config, alone="either")
 
 
 def _query(transport: Transport, key: str, request: Any, reply_type: type, what: str) -> Any:
