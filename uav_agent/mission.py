@@ -623,6 +623,18 @@ class Mission:
 
     def _cross_check(self, record: Record) -> None:
         """The world's record against what the UAV believes: any disagreement is reported."""
+        hits = [f for f in record.refused if f.get("collision")]
+        if hits:
+            self._event("collision", sorted({f["robot"] for f in hits}), f"the world refused {len(hits)} illegal "
+                        f"move(s), first at tick {hits[0]['tick']}: {hits[0]['reason']}")
+        vehicle = (record.truth or {}).get("vehicle")
+        if vehicle:
+            if self.uav["landed"] and (vehicle.get("armed") or vehicle.get("landed_state") != "ON_GROUND"):
+                self._event("record-mismatch", [], f"the UAV believes it landed; the vehicle says armed "
+                                                   f"{vehicle.get('armed')}, {vehicle.get('landed_state')}")
+            crashes = [text for _, text in vehicle.get("events", []) if "hit the ground" in text]
+            if crashes:
+                self._event("vehicle", [], f"the vehicle's own record: {crashes[0]}")
         seen = getattr(self, "seen_at_end", {})
         for rid, cells in record.executed.items():
             r = int(rid)
