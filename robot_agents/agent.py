@@ -22,7 +22,7 @@ from protocol.config import add_session_arguments
 from protocol.errors import ProtocolError, UavRobotsError
 from protocol.keys import DEFAULT_FLEET, Keys, robot_id_from_key
 from protocol.log import Throttled
-from protocol.messages import (Done, MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Plan, Tick, decode,
+from protocol.messages import (MAX_ROBOT_ID, MAX_ROBOTS, Done, MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Plan, Tick, decode,
                                encode)
 from protocol.process import Lifecycle
 from protocol.transport import Transport, open_session
@@ -63,6 +63,8 @@ def parse_ids(text: str) -> list[int]:
             raise UavRobotsError(f"robot ids {text!r}: {part!r} is not a number or a range like 0-49") from None
         if a < 0 or b < a:
             raise UavRobotsError(f"robot ids {text!r}: {part!r} is not a range of non-negative ids")
+        if b > MAX_ROBOT_ID or b - a + 1 + len(ids) > MAX_ROBOTS:
+            raise UavRobotsError(f"robot ids {text!r}: at most {MAX_ROBOTS} robots with ids up to {MAX_ROBOT_ID}")
         ids.update(range(a, b + 1))
     if not ids:
         raise UavRobotsError(f"robot ids {text!r}: no id given")

@@ -6,6 +6,7 @@ A map spec is what `--map` accepts: a `.map` file path, a named map
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -13,7 +14,19 @@ import numpy as np
 from scipy import ndimage
 
 from protocol.errors import MapError
+from protocol.messages import MAX_GRID_SIDE
 from protocol.mapfile import Cell, read_map
+
+
+MAX_CELLS = 1 << 24   # 4096 x 4096: the planners' tables for such a floor already take gigabytes
+
+
+def _check_size(width: int, height: int, what: str) -> None:
+    # Before allocating: a typo in a generator's parameters must be a line, not gigabytes.
+    if width > MAX_GRID_SIDE or height > MAX_GRID_SIDE:
+        raise MapError(f"{what}: {width}x{height} cells exceeds the protocol's {MAX_GRID_SIDE} cells per side")
+    if width * height > MAX_CELLS:
+        raise MapError(f"{what}: {width}x{height} is {width * height:,} cells, more than {MAX_CELLS:,}")
 
 
 def warehouse(blocks_x: int, blocks_y: int, shelf_w: int = 10, shelf_h: int = 2, aisle: int = 2,
@@ -30,6 +43,7 @@ def warehouse(blocks_x: int, blocks_y: int, shelf_w: int = 10, shelf_h: int = 2,
         raise MapError("warehouse: aisle, dock and margin must be at least 1 cell")
     width = 2 + 2 * dock + blocks_x * shelf_w + (blocks_x - 1) * aisle
     height = 2 + 2 * margin + blocks_y * shelf_h + (blocks_y - 1) * aisle
+    _check_size(width, height, "warehouse")
     free = np.ones((height, width), dtype=bool)
     free[0, :] = free[-1, :] = free[:, 0] = free[:, -1] = False
     for by in range(blocks_y):
@@ -44,6 +58,7 @@ def random_map(width: int, height: int, density: float, seed: int) -> np.ndarray
     """Obstacles on a `density` fraction of cells, uniformly at random (seeded)."""
     if width < 2 or height < 2:
         raise MapError(f"random map: size {width}x{height} is too small")
+    _check_size(width, height, "random map")
     if not 0.0 <= density < 1.0:
         raise MapError(f"random map: density must be in [0, 1), got {density}")
     rng = np.random.default_rng(seed)
@@ -66,6 +81,8 @@ def _params(text: str, spec: str) -> dict[str, float]:
             out[key.strip()] = float(value)
         except ValueError:
             raise MapError(f"map spec {spec!r}: {part!r} is not name=number") from None
+        if not math.isfinite(out[key.strip()]):
+            raise MapError(f"map spec {spec!r}: {part!r} is not a finite number")
         if not sep:
             raise MapError(f"map spec {spec!r}: {part!r} is not name=number")
     return out

@@ -49,6 +49,9 @@ GOAL_RING = 0.07           # of a cell, the dark ring around it
 MAX_TEXTURE_PX = 8192
 
 
+MAX_SIDE_PX = 8192   # 67 MP: beyond any drone camera, and a frame still fits the protocol's PNG limit
+
+
 @dataclass(frozen=True)
 class CameraModel:
     """Pinhole intrinsics plus optional image degradations.
@@ -73,6 +76,12 @@ class CameraModel:
     def __post_init__(self) -> None:
         if self.width < 16 or self.height < 16:
             raise MissionError(f"camera: image size {self.width}x{self.height} is too small (16x16 at least)")
+        if self.width > MAX_SIDE_PX or self.height > MAX_SIDE_PX:
+            raise MissionError(f"camera: image size {self.width}x{self.height} is too large "
+                               f"({MAX_SIDE_PX} pixels per side at most)")
+        if not all(math.isfinite(float(v)) for v in (self.hfov_deg, self.noise_std, self.blur_sigma, self.lighting,
+                                                    self.lighting_angle_deg)):
+            raise MissionError("camera: every option must be a finite number")
         if self.fx is None and not 1.0 <= self.hfov_deg <= 170.0:
             raise MissionError(f"camera: horizontal field of view {self.hfov_deg} deg is not in [1, 170]")
         fx = self.fx if self.fx is not None else (self.width / 2) / math.tan(math.radians(self.hfov_deg) / 2)

@@ -481,7 +481,7 @@ def add_world_parser(subparsers: Any) -> argparse.ArgumentParser:
     return p
 
 
-def _camera_options(text: str) -> dict[str, Any]:
+def camera_options(text: str) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for part in filter(None, text.split(",")):
         key, sep, value = part.partition("=")
@@ -551,7 +551,7 @@ def config_from_args(args: argparse.Namespace) -> WorldConfig:
     cfg = WorldConfig(fleet=args.fleet, map=args.map, robots=args.robots, seed=args.seed, scen=args.scen,
                       connectivity=args.connectivity, cell_size_m=args.cell_size, home_lat=home[0],
                       home_lon=home[1], home_alt_m=home[2], mavlink=mav, time_scale=args.time_scale,
-                      camera={**DRONE_CAMERA, **_camera_options(args.camera)}, connect=args.connect, listen=args.listen,
+                      camera={**DRONE_CAMERA, **camera_options(args.camera)}, connect=args.connect, listen=args.listen,
                       zenoh_config=args.zenoh_config, move_batch_timeout_s=args.move_timeout,
                       slip=slip_probability(args.fault))
     cfg.check()

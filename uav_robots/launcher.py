@@ -152,19 +152,44 @@ class Launcher:
                 "launcher": os.getpid()}
 
 
-def run(args) -> int:
-    # Check the input before starting anything, so a bad map is one line, not three dead processes.
-    from scenarios.maps import place, resolve_map
+def _number(name: str, value: float, lo: float, hi: float, lo_open: bool = False) -> None:
+    ok = math.isfinite(value) and (value > lo if lo_open else value >= lo) and value <= hi
+    if not ok:
+        raise UavRobotsError(f"{name} must be a number in {'(' if lo_open else '['}{lo:g}, {hi:g}], got {value:g}")
 
-    name, free = resolve_map(args.map, args.seed)
-    place(free, args.robots, args.seed)
-    from sim_world.world import MOVE_BATCH_TIMEOUT_S, slip_probability
+
+def check_arguments(args) -> tuple[str, object]:
+    """Every input of `run`, checked before any process starts: one line and exit 2 for the first bad one."""
+    from protocol.messages import MAX_ROBOTS
+    from scenarios.maps import place, resolve_map
+    from sim_world.camera import CameraModel
+    from sim_world.world import DRONE_CAMERA, MOVE_BATCH_TIMEOUT_S, camera_options, slip_probability
+
+    _number("--robots", args.robots, 1, MAX_ROBOTS)
+    _number("--seed", args.seed, 0, 2**32 - 1)
+    _number("--time-scale", args.time_scale, 0, 1000, lo_open=True)
+    _number("--tick-rate", args.tick_rate, 0, 1000)
+    _number("--timeout", args.timeout, 0, 7 * 86400, lo_open=True)
+    _number("--time-limit", args.time_limit, 0, 86400, lo_open=True)
+    if args.robots_per_process is not None:
+        _number("--robots-per-process", args.robots_per_process, 1, MAX_ROBOTS)
+    if args.monitor_every is not None:
+        _number("--monitor-every", args.monitor_every, 0, 10**6)
+    # Everyone waits for the world's batch when one robot is silent: a shorter deadline would call the
+    # whole fleet stalled.
+    _number("--tick-timeout", args.tick_timeout, MOVE_BATCH_TIMEOUT_S, 3600, lo_open=True)
+    if args.out:
+        out = Path(args.out)
+        if out.exists() and not out.is_dir():
+            raise UavRobotsError(f"--out {args.out}: is a file, not a directory")
+        parent = next((p for p in [out, *out.resolve().parents] if p.exists()), None)
+        if parent is None or not os.access(parent, os.W_OK):
+            raise UavRobotsError(f"--out {args.out}: cannot write there")
+    try:
+        CameraModel(**{**DRONE_CAMERA, **camera_options(args.camera)})
+    except (MissionError, TypeError) as exc:
+        raise UavRobotsError(f"--camera {args.camera!r}: {exc}") from None
     slip_probability([f for f in args.fault if f.startswith("slip:")])
-    if not args.tick_timeout > MOVE_BATCH_TIMEOUT_S:
-        # Everyone waits for the world's batch when one robot is silent: a shorter deadline would call
-        # the whole fleet stalled.
-        raise UavRobotsError(f"--tick-timeout must exceed the world's move batch timeout "
-                             f"({MOVE_BATCH_TIMEOUT_S:g} s), got {args.tick_timeout:g}")
     for f in map(parse_fault, (f for f in args.fault if not f.startswith("slip:"))):
         if f.robot >= args.robots:
             raise UavRobotsError(f"--fault {f}: there is no robot {f.robot} in a fleet of {args.robots}")
@@ -172,6 +197,13 @@ def run(args) -> int:
         from uav_agent.planning.registry import get_planner
 
         get_planner(args.planner)
+    name, free = resolve_map(args.map, args.seed)
+    place(free, args.robots, args.seed)
+    return name, free
+
+
+def run(args) -> int:
+    name, free = check_arguments(args)
     launcher = Launcher(args)
     t0 = time.perf_counter()
     code = 1

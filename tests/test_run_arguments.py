@@ -1,0 +1,36 @@
+"""`uav-robots run` checks every input before it starts a process: one line, exit 2."""
+import subprocess
+import sys
+
+import pytest
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--seed", "-1"], "--seed must be"),
+    (["--robots", "0"], "--robots must be"),
+    (["--time-scale", "0"], "--time-scale must be"),
+    (["--time-scale", "nan"], "--time-scale must be"),
+    (["--tick-timeout", "1"], "--tick-timeout must be"),
+    (["--map", "warehouse:blocks_x=nan,blocks_y=3"], "not a finite number"),
+    (["--map", "random:width=90000,height=90000"], "cells per side"),
+    (["--map", "random:width=16000,height=16000"], "more than"),
+    (["--camera", "width=100000,height=100000"], "too large"),
+    (["--camera", "width=abc"], "not name=number"),
+    (["--fault", "liar:99"], "no robot 99"),
+    (["--planner", "warp"], "unknown planner"),
+])
+def test_bad_input_is_one_line_before_anything_starts(args, words):
+    run = subprocess.run([sys.executable, "-m", "uav_robots", "run", *args], capture_output=True, text=True,
+                         timeout=60)
+    assert run.returncode == 2, (args, run.stdout[-500:], run.stderr[-500:])
+    assert run.stdout == "", "a process was started or a header printed before the check"
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and words in lines[0], lines
+
+
+def test_an_out_that_is_a_file_is_refused(tmp_path):
+    f = tmp_path / "report"
+    f.write_text("x")
+    run = subprocess.run([sys.executable, "-m", "uav_robots", "run", "--out", str(f)], capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 2 and "is a file" in run.stderr and len(run.stderr.strip().splitlines()) == 1
