@@ -1,28 +1,26 @@
-"""LaCAM: lazy constraints addition search for MAPF (Okumura, AAAI 2023), and the default planner.
+"""LaCAM: lazy constraints addition search for MAPF (Okumura, "LaCAM: Search-Based
+Algorithm for Quick Multi-Agent Pathfinding", AAAI 2023), and the default planner.
 
 The high level is a depth-first search over configurations (one cell per
 robot). Each configuration owns a queue of low-level constraint nodes ("robot
 i goes to cell v", added lazily one robot at a time, in priority order); each
-visit pops one, and PIBT generates a successor configuration obeying it.
-Configurations already seen are not expanded again. Since the constraint
-tree of a configuration eventually enumerates every successor, the search is
-complete: it finds a solution whenever one exists, given time.
-
-PIBT here uses LaCAM3's swap technique (Okumura, AAMAS 2024), without which
-robots meeting head-on in 1-wide aisles livelock.
+visit pops one, and PIBT (`pibt.py`, with LaCAM3's swap technique) generates a
+successor configuration obeying it. Configurations already seen are not
+expanded again. Since the constraint tree of a configuration eventually
+enumerates every successor, the search is complete: it finds a solution
+whenever one exists, given time.
 
 `lacam(problem, limits)` is the fast default: on sparse instances it first
 tries prioritized planning (near-optimal and cheap when robots rarely meet);
 if that leaves robots unrouted, LaCAM runs with the routed robots' paths as
-guides for PIBT. `refine` is an anytime improvement of a plan: it replans
-groups of delayed robots with SIPP against the others' paths (large
-neighbourhood search), keeping only improvements; it is not part of `lacam`
-because, measured on LaCAM's plans for crowded warehouses, it won under 1 % of
-the sum of costs for as much time again as the search.
+guides for PIBT. `refine` (`refine.py`) can improve a plan further; it is not
+part of `lacam` because, measured on LaCAM's plans for crowded warehouses, it
+won under 1 % of the sum of costs for as much time again as the search.
 """
 from __future__ import annotations
 
 import time
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -30,25 +28,60 @@ from numba import njit
 from protocol.errors import PlanningError
 
 from .distances import Instance, compile_problem
-from .pibt import _crosses, degrees, history_to_paths, initial_priorities, pibt, pibt_step, rand_next, update_priorities
-from .prioritized import (
-    copy_into,
+from .grid_kernels import (
+    Geometry,
+    Grid,
+    grid_of,
     grow,
-    guide_paths,
-    kernel_args,
-    max_expansions,
+    grow_rows,
     now,
     order_by_priority,
-    reserve,
-    rs_find,
-    rs_new,
-    sipp,
-    split_paths,
-    unreserve,
+    shuffle,
 )
+from .pibt import (
+    at_goals,
+    crosses,
+    history_to_paths,
+    initial_priorities,
+    new_pibt,
+    pibt,
+    pibt_step,
+    update_priorities,
+)
+from .prioritized import guide_paths, max_expansions, split_paths
+from .refine import refine, trimmed
+from .reservations import Paths
 from .types import Limits, Path, Problem
 
 SEARCH_MEMORY = 1.0e9        # bytes LaCAM's search tables may take before it gives up
+
+
+class Configs(NamedTuple):
+    """High-level nodes: a configuration, its priorities, and its queue of constraints to try."""
+    cfg: np.ndarray           # int32 [cap, robots]
+    prio: np.ndarray          # float32 [cap, robots]
+    parent: np.ndarray        # int32 [cap]
+    depth: np.ndarray         # int32 [cap]
+    q_head: np.ndarray        # int32 [cap]: the queue of low-level nodes, linked by Constraints.next
+    q_tail: np.ndarray        # int32 [cap]
+    size: np.ndarray          # int64 [1]: nodes in use
+
+
+class Constraints(NamedTuple):
+    """Low-level nodes: robot `who` goes to cell `where`, on top of the constraints of `parent`."""
+    parent: np.ndarray        # int32
+    who: np.ndarray           # int32, -1 at a root (no robot fixed)
+    where: np.ndarray         # int32
+    depth: np.ndarray         # int32: robots fixed
+    next: np.ndarray          # int32: the next node in its configuration's queue
+    size: np.ndarray          # int64 [1]
+
+
+class Explored(NamedTuple):
+    """Configuration hash -> node, open addressing; equal hashes are told apart by content."""
+    keys: np.ndarray          # int64, -1 empty
+    vals: np.ndarray          # int32
+    used: np.ndarray          # int64 [1]
 
 
 @njit(cache=True)
@@ -57,20 +90,25 @@ def _hash_cfg(q: np.ndarray) -> int:
     for i in range(q.shape[0]):
         h = (h ^ np.uint64(q[i])) * np.uint64(1099511628211)
         h ^= h >> np.uint64(29)
-    return np.int64(h >> np.uint64(1))     # non-negative: the hash map reserves negative keys
+    return np.int64(h >> np.uint64(1))     # non-negative: -1 marks an empty slot
+
+
+@njit(cache=True, inline='always')
+def _home(h: int, mask: int) -> int:
+    return np.int64((np.uint64(h) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(29)) & mask
 
 
 @njit(cache=True)
-def _find_cfg(keys, vals, cfg, q: np.ndarray, h: int) -> int:
-    """The node holding configuration q (hash h), or -1; hash collisions are told apart by content."""
-    mask = keys.shape[0] - 1
-    s = np.int64((np.uint64(h) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(29)) & mask
+def _find_cfg(ex: Explored, cfg, q: np.ndarray, h: int) -> int:
+    """The node holding configuration q (hash h), or -1."""
+    mask = ex.keys.shape[0] - 1
+    s = _home(h, mask)
     while True:
-        k = keys[s]
+        k = ex.keys[s]
         if k == -1:
             return -1
         if k == h:
-            node = vals[s]
+            node = ex.vals[s]
             same = True
             for i in range(q.shape[0]):
                 if cfg[node, i] != q[i]:
@@ -82,115 +120,194 @@ def _find_cfg(keys, vals, cfg, q: np.ndarray, h: int) -> int:
 
 
 @njit(cache=True)
-def _add_cfg(keys, vals, meta, h: int, node: int):
-    """Inserts (h -> node) allowing equal hashes for different configurations."""
-    if 2 * (meta[0] + 1) > keys.shape[0]:
+def _add_cfg(ex: Explored, h: int, node: int) -> Explored:
+    """Inserts (h -> node); the table may move."""
+    keys, vals = ex.keys, ex.vals
+    if 2 * (ex.used[0] + 1) > keys.shape[0]:
         nk = np.full(2 * keys.shape[0], -1, dtype=np.int64)
         nv = np.empty(2 * keys.shape[0], dtype=np.int32)
         mask = nk.shape[0] - 1
         for s in range(keys.shape[0]):
             if keys[s] >= 0:
-                t = np.int64((np.uint64(keys[s]) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(29)) & mask
+                t = _home(keys[s], mask)
                 while nk[t] != -1:
                     t = (t + 1) & mask
                 nk[t] = keys[s]
                 nv[t] = vals[s]
         keys, vals = nk, nv
     mask = keys.shape[0] - 1
-    s = np.int64((np.uint64(h) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(29)) & mask
+    s = _home(h, mask)
     while keys[s] != -1:
         s = (s + 1) & mask
     keys[s] = h
     vals[s] = node
-    meta[0] += 1
-    return keys, vals
+    ex.used[0] += 1
+    return Explored(keys, vals, ex.used)
+
+
+# The helpers of one high-level iteration take arrays rather than the structures: a call
+# counts a reference to every array it is passed (see grid_kernels), and LaCAM makes many
+# short iterations.
+
+@njit(cache=True, inline='always')
+def _with_room(con: Constraints, need: int) -> Constraints:
+    return Constraints(grow(con.parent, need), grow(con.who, need), grow(con.where, need), grow(con.depth, need),
+                       grow(con.next, need), con.size)
 
 
 @njit(cache=True)
-def _grow2(a: np.ndarray, rows: int) -> np.ndarray:
-    b = np.empty((2 * a.shape[0], a.shape[1]), dtype=a.dtype)
-    for r in range(rows):
-        for i in range(a.shape[1]):
-            b[r, i] = a[r, i]
-    return b
+def _add_constraint(con: Constraints, parent: int, who: int, where: int, depth: int) -> int:
+    """Appends a low-level node (the caller has made room); returns its id."""
+    c = con.size[0]
+    con.parent[c] = parent
+    con.who[c] = who
+    con.where[c] = where
+    con.depth[c] = depth
+    con.next[c] = -1
+    con.size[0] = c + 1
+    return c
+
+
+@njit(cache=True, inline='always')
+def _add_config(hi: Configs, q, prio, parent: int, depth: int, root: int) -> Configs:
+    """Appends a high-level node whose constraint queue holds the root constraint `root`."""
+    c = hi.size[0]
+    if c == hi.cfg.shape[0]:
+        hi = Configs(grow_rows(hi.cfg, c), grow_rows(hi.prio, c), grow(hi.parent, c + 1), grow(hi.depth, c + 1),
+                     grow(hi.q_head, c + 1), grow(hi.q_tail, c + 1), hi.size)
+    for i in range(q.shape[0]):
+        hi.cfg[c, i] = q[i]
+        hi.prio[c, i] = prio[i]
+    hi.parent[c] = parent
+    hi.depth[c] = depth
+    hi.q_head[c] = root
+    hi.q_tail[c] = root
+    hi.size[0] = c + 1
+    return hi
 
 
 @njit(cache=True)
-def _grow1(a: np.ndarray) -> np.ndarray:
-    return grow(a, a.shape[0] + 1)
+def _add_children(nbr, con: Constraints, low: int, i: int, v: int, q_head, q_tail, h: int, rng) -> None:
+    """The low-level expansion: below constraint `low`, one child per cell robot i (at v) can
+    take next (its neighbours and its own cell, in random order as in the paper), queued at
+    node h. The caller has made room."""
+    k = nbr.shape[1] + 1
+    cands = np.empty(k, dtype=np.int32)
+    m = 0
+    for j in range(k):
+        u = v if j == k - 1 else nbr[v, j]
+        if u >= 0:
+            cands[m] = u
+            m += 1
+    shuffle(cands, m, rng)
+    for j in range(m):
+        c = _add_constraint(con, low, i, cands[j], con.depth[low] + 1)
+        if q_head[h] < 0:
+            q_head[h] = c
+        else:
+            con.next[q_tail[h]] = c
+        q_tail[h] = c
 
 
 @njit(cache=True)
-def _search(nbr, deg, dist, rows, starts, goals, prio0, xs, ys, index, width: int, diagonal: bool, swap: bool,
-            deadline: float, seed: int, max_nodes: int, max_lnodes: int, gbuf, goff, glen):
+def _constrain(who, where, parent, low: int, geo: Geometry, occ_now, occ_nxt, q_from, q_to) -> bool:
+    """Starts the successor of q_from with the moves constraint `low` fixes (q_to, with the
+    occupancy maps PIBT reads); False, with the next-step map cleared again, when two of them
+    take one cell, swap, or cross."""
+    for i in range(q_to.shape[0]):
+        q_to[i] = -1
+    ok = True
+    c = low
+    while who[c] >= 0:
+        if occ_nxt[where[c]] >= 0:
+            ok = False
+            break
+        q_to[who[c]] = where[c]
+        occ_nxt[where[c]] = who[c]
+        c = parent[c]
+    for i in range(q_from.shape[0]):
+        occ_now[q_from[i]] = i
+    c = low
+    while ok and who[c] >= 0:
+        a = who[c]
+        j = occ_now[q_to[a]]
+        if (j >= 0 and j != a and q_to[j] == q_from[a]) \
+                or (geo.diagonal and crosses(geo, q_from[a], q_to[a], q_to, occ_now)):
+            ok = False
+        c = parent[c]
+    if not ok:
+        for i in range(q_to.shape[0]):
+            if q_to[i] >= 0:
+                occ_nxt[q_to[i]] = -1
+    return ok
+
+
+@njit(cache=True, inline='always')
+def _follow_guides(guides: Paths, goals, t: int, q_from, pref) -> None:
+    """A robot that is where its guide path says at step t tries the guide's next cell first
+    (at the guide's end, it stays on its goal)."""
+    for i in range(q_from.shape[0]):
+        pref[i] = -1
+        n = guides.length[i]
+        if n > 0:
+            if t + 1 < n:
+                if q_from[i] == guides.buf[guides.off[i] + t]:
+                    pref[i] = guides.buf[guides.off[i] + t + 1]
+            elif q_from[i] == goals[i]:
+                pref[i] = goals[i]
+
+
+@njit(cache=True, inline='always')
+def _history(hi: Configs, node: int) -> np.ndarray:
+    """The configurations from the root to `node` [T, robots]."""
+    length = 0
+    c = node
+    while c >= 0:
+        length += 1
+        c = hi.parent[c]
+    out = np.empty((length, hi.cfg.shape[1]), dtype=np.int32)
+    c = node
+    for t in range(length - 1, -1, -1):
+        for i in range(hi.cfg.shape[1]):
+            out[t, i] = hi.cfg[c, i]
+        c = hi.parent[c]
+    return out
+
+
+@njit(cache=True)
+def _search(g: Grid, prio0, swap: bool, deadline: float, seed: int, max_nodes: int, max_lnodes: int,
+            guides: Paths):
     """LaCAM's high-level search: (status, configurations from start to goal [T, n]).
 
-    Guide paths (robot i: gbuf[goff[i]:goff[i]+glen[i]], glen 0 = none) steer PIBT: a
-    robot that is where its guide says at a node's depth tries the guide's next cell first.
+    Guide paths (robot i: guides.length[i] 0 = none) steer PIBT: a robot that is where its
+    guide says at a node's depth tries the guide's next cell first.
 
     status 0 solved, 1 proved unsolvable (search space exhausted), 2 time limit, 3 node cap
     (max_nodes configurations or max_lnodes constraints: the memory bound)."""
-    n = nbr.shape[0]
-    na = starts.shape[0]
-    k = nbr.shape[1] + 1
-    # high-level nodes
-    cap = 256
-    cfg = np.empty((cap, na), dtype=np.int32)
-    prio = np.empty((cap, na), dtype=np.float32)
-    parent = np.empty(cap, dtype=np.int32)
-    depth = np.empty(cap, dtype=np.int32)
-    q_head = np.empty(cap, dtype=np.int32)    # queue of low-level nodes to try
-    q_tail = np.empty(cap, dtype=np.int32)
-    # low-level (constraint) nodes
-    lcap = 1024
-    l_parent = np.empty(lcap, dtype=np.int32)
-    l_who = np.empty(lcap, dtype=np.int32)
-    l_where = np.empty(lcap, dtype=np.int32)
-    l_depth = np.empty(lcap, dtype=np.int32)
-    l_next = np.empty(lcap, dtype=np.int32)
-    # explored configurations
-    hkeys = np.full(1024, -1, dtype=np.int64)
-    hvals = np.empty(1024, dtype=np.int32)
-    hmeta = np.zeros(1, dtype=np.int64)
-    open_ = np.empty(1024, dtype=np.int32)
-    # scratch for PIBT
-    occ_now = np.full(n, -1, dtype=np.int32)
-    occ_nxt = np.full(n, -1, dtype=np.int32)
-    st_agent = np.empty(na, dtype=np.int32)
-    st_pos = np.empty(na, dtype=np.int32)
-    st_nc = np.empty(na, dtype=np.int32)
-    st_cand = np.empty((na, k), dtype=np.int32)
-    st_swap = np.empty(na, dtype=np.int32)
-    rng = np.array([np.uint64(seed) * np.uint64(2654435761) + np.uint64(88172645463325252)], dtype=np.uint64)
+    na = g.starts.shape[0]
+    k = g.nbr.shape[1] + 1
+    hi = Configs(np.empty((256, na), dtype=np.int32), np.empty((256, na), dtype=np.float32),
+                 np.empty(256, dtype=np.int32), np.empty(256, dtype=np.int32), np.empty(256, dtype=np.int32),
+                 np.empty(256, dtype=np.int32), np.zeros(1, dtype=np.int64))
+    con = Constraints(np.empty(1024, dtype=np.int32), np.empty(1024, dtype=np.int32), np.empty(1024, dtype=np.int32),
+                      np.empty(1024, dtype=np.int32), np.empty(1024, dtype=np.int32), np.zeros(1, dtype=np.int64))
+    ex = Explored(np.full(1024, -1, dtype=np.int64), np.empty(1024, dtype=np.int32), np.zeros(1, dtype=np.int64))
+    open_ = np.empty(1024, dtype=np.int32)      # the depth-first stack of high-level nodes
+    w = new_pibt(g, seed, swap)
     q_to = np.empty(na, dtype=np.int32)
-    cands = np.empty(k, dtype=np.int32)
     p_new = np.empty(na, dtype=np.float32)
-    pref = np.full(na, -1, dtype=np.int32)
+    order = np.empty(na, dtype=np.int64)
     guided = False
     for i in range(na):
-        if glen[i] > 0:
+        if guides.length[i] > 0:
             guided = True
-
-    for i in range(na):
-        cfg[0, i] = starts[i]
-        prio[0, i] = prio0[i]
-    order = np.empty(na, dtype=np.int32)
-    parent[0] = -1
-    depth[0] = 0
-    l_parent[0] = -1
-    l_who[0] = -1
-    l_where[0] = -1
-    l_depth[0] = 0
-    l_next[0] = -1
-    q_head[0] = 0
-    q_tail[0] = 0
-    nodes = 1
-    lnodes = 1
-    hkeys, hvals = _add_cfg(hkeys, hvals, hmeta, _hash_cfg(starts), 0)
-    open_[0] = 0
+    root = hi.size[0]
+    _add_constraint(con, -1, -1, -1, 0)
+    hi = _add_config(hi, g.starts, prio0, -1, 0, 0)
+    ex = _add_cfg(ex, _hash_cfg(g.starts), root)
+    open_[0] = root
     top = 1
     it = 0
-    goal_node = -1
     status = 1
     while top > 0:
         it += 1
@@ -198,169 +315,52 @@ def _search(nbr, deg, dist, rows, starts, goals, prio0, xs, ys, index, width: in
             status = 2
             break
         h = open_[top - 1]
-        is_goal = True
-        for i in range(na):
-            if cfg[h, i] != goals[i]:
-                is_goal = False
-                break
-        if is_goal:
-            goal_node = h
-            status = 0
-            break
-        if q_head[h] < 0:
-            top -= 1
+        q_from = hi.cfg[h]
+        if at_goals(q_from, g.goals):
+            return 0, _history(hi, h)
+        if hi.q_head[h] < 0:
+            top -= 1        # every successor of h tried
             continue
-        low = q_head[h]
-        q_head[h] = l_next[low]
-        order_by_priority(prio[h], order)
-        # lazily add the children of this constraint: the next robot in order, every possible move
-        if l_depth[low] < na:
-            if lnodes + k > max_lnodes:
+        low = hi.q_head[h]
+        hi.q_head[h] = con.next[low]
+        order_by_priority(hi.prio[h], order)
+        if con.depth[low] < na:
+            if con.size[0] + k > max_lnodes:
                 status = 3
                 break
-            i = order[l_depth[low]]
-            v = cfg[h, i]
-            m = 0
-            for j in range(k):
-                u = v if j == k - 1 else nbr[v, j]
-                if u >= 0:
-                    cands[m] = u
-                    m += 1
-            for j in range(m - 1, 0, -1):      # random order, as in the paper
-                r = rand_next(rng) % (j + 1)
-                tmp = cands[j]
-                cands[j] = cands[r]
-                cands[r] = tmp
-            for j in range(m):
-                if lnodes == l_parent.shape[0]:
-                    l_parent = _grow1(l_parent)
-                    l_who = _grow1(l_who)
-                    l_where = _grow1(l_where)
-                    l_depth = _grow1(l_depth)
-                    l_next = _grow1(l_next)
-                l_parent[lnodes] = low
-                l_who[lnodes] = i
-                l_where[lnodes] = cands[j]
-                l_depth[lnodes] = l_depth[low] + 1
-                l_next[lnodes] = -1
-                if q_head[h] < 0:
-                    q_head[h] = lnodes
-                else:
-                    l_next[q_tail[h]] = lnodes
-                q_tail[h] = lnodes
-                lnodes += 1
-        # successor configuration under the constraints of `low`
-        q_from = cfg[h]
-        for i in range(na):
-            q_to[i] = -1
-        ok = True
-        c = low
-        while l_who[c] >= 0:
-            who = l_who[c]
-            wh = l_where[c]
-            if occ_nxt[wh] >= 0:
-                ok = False
-                break
-            q_to[who] = wh
-            occ_nxt[wh] = who
-            c = l_parent[c]
-        for i in range(na):
-            occ_now[q_from[i]] = i
+            if con.size[0] + k > con.parent.shape[0]:
+                con = _with_room(con, con.size[0] + k)
+            i = order[con.depth[low]]
+            _add_children(g.nbr, con, low, i, hi.cfg[h, i], hi.q_head, hi.q_tail, h, w.rng)
+        # the configuration generator: PIBT for the robots the constraint leaves free
+        ok = _constrain(con.who, con.where, con.parent, low, g.geo, w.occ_now, w.occ_nxt, q_from, q_to)
         if ok:
-            c = low
-            while l_who[c] >= 0:
-                who = l_who[c]
-                j = occ_now[q_to[who]]
-                if j >= 0 and j != who and q_to[j] == q_from[who]:
-                    ok = False
-                    break
-                if diagonal and _crosses(q_from[who], q_to[who], q_to, occ_now, xs, ys, index, width):
-                    ok = False
-                    break
-                c = l_parent[c]
-        if ok and guided:
-            t = depth[h]
-            for i in range(na):
-                pref[i] = -1
-                if glen[i] > 0:
-                    if t + 1 < glen[i]:
-                        if q_from[i] == gbuf[goff[i] + t]:
-                            pref[i] = gbuf[goff[i] + t + 1]
-                    elif q_from[i] == goals[i]:
-                        pref[i] = goals[i]
-        if ok:
-            ok = pibt_step(nbr, deg, dist, rows, goals, q_from, q_to, order, occ_now, occ_nxt, xs, ys, index,
-                           width, diagonal, swap, st_agent, st_pos, st_nc, st_cand, st_swap, rng, pref)
-        else:
-            for i in range(na):
-                if q_to[i] >= 0:
-                    occ_nxt[q_to[i]] = -1
+            if guided:
+                _follow_guides(guides, g.goals, hi.depth[h], q_from, w.pref)
+            ok = pibt_step(g, w, q_from, q_to, order)
         for i in range(na):
-            occ_now[q_from[i]] = -1
+            w.occ_now[q_from[i]] = -1
         if not ok:
             continue
         hq = _hash_cfg(q_to)
-        found = _find_cfg(hkeys, hvals, cfg, q_to, hq)
-        if found >= 0:
-            # known configuration: revisit it (its remaining constraints may lead elsewhere)
-            if top == open_.shape[0]:
-                open_ = _grow1(open_)
-            open_[top] = found
-            top += 1
-            continue
-        if nodes >= max_nodes:
-            status = 3
-            break
-        if nodes == cfg.shape[0]:
-            cfg = _grow2(cfg, nodes)
-            prio = _grow2(prio, nodes)
-            parent = _grow1(parent)
-            depth = _grow1(depth)
-            q_head = _grow1(q_head)
-            q_tail = _grow1(q_tail)
-        for i in range(na):
-            cfg[nodes, i] = q_to[i]
-            p_new[i] = prio[h, i]
-        update_priorities(p_new, q_to, goals)
-        for i in range(na):
-            prio[nodes, i] = p_new[i]
-        parent[nodes] = h
-        depth[nodes] = depth[h] + 1
-        # a fresh root constraint (no robot fixed yet) for the new configuration
-        if lnodes == l_parent.shape[0]:
-            l_parent = _grow1(l_parent)
-            l_who = _grow1(l_who)
-            l_where = _grow1(l_where)
-            l_depth = _grow1(l_depth)
-            l_next = _grow1(l_next)
-        l_parent[lnodes] = -1
-        l_who[lnodes] = -1
-        l_where[lnodes] = -1
-        l_depth[lnodes] = 0
-        l_next[lnodes] = -1
-        q_head[nodes] = lnodes
-        q_tail[nodes] = lnodes
-        lnodes += 1
-        hkeys, hvals = _add_cfg(hkeys, hvals, hmeta, hq, nodes)
-        if top == open_.shape[0]:
-            open_ = _grow1(open_)
-        open_[top] = nodes
+        node = _find_cfg(ex, hi.cfg, q_to, hq)
+        if node < 0:
+            node = hi.size[0]
+            if node >= max_nodes:
+                status = 3
+                break
+            for i in range(na):
+                p_new[i] = hi.prio[h, i]
+            update_priorities(p_new, q_to, g.goals)
+            if con.size[0] == con.parent.shape[0]:
+                con = _with_room(con, con.size[0] + 1)
+            hi = _add_config(hi, q_to, p_new, h, hi.depth[h] + 1, _add_constraint(con, -1, -1, -1, 0))
+            ex = _add_cfg(ex, hq, node)
+        # onto the stack: the new node, or the known one again (its remaining constraints may lead elsewhere)
+        open_ = grow(open_, top + 1)
+        open_[top] = node
         top += 1
-        nodes += 1
-    if goal_node < 0:
-        return status, cfg[:0]
-    length = 0
-    c = goal_node
-    while c >= 0:
-        length += 1
-        c = parent[c]
-    out = np.empty((length, na), dtype=np.int32)
-    c = goal_node
-    for t in range(length - 1, -1, -1):
-        for i in range(na):
-            out[t, i] = cfg[c, i]
-        c = parent[c]
-    return 0, out
+    return status, hi.cfg[:0]
 
 
 def search(inst: Instance, limits: Limits, memory: float = SEARCH_MEMORY, swap: bool = True,
@@ -374,13 +374,13 @@ def search(inst: Instance, limits: Limits, memory: float = SEARCH_MEMORY, swap: 
     # a constraint node: five int32
     max_nodes = int(max(1000, 0.6 * memory / (8 * inst.n + 24)))
     max_lnodes = int(max(10_000, 0.4 * memory / 20))
-    nbr, xs, ys, index, width = kernel_args(inst)
     if guides is None:
         guides = (np.zeros(1, np.int32), np.zeros(inst.n, np.int64), np.zeros(inst.n, np.int64))
-    status, hist = _search(nbr, degrees(nbr), inst.table.dist, inst.rows, inst.starts, inst.goals,
-                           initial_priorities(inst), xs, ys, index, width, inst.problem.connectivity == 8, swap,
-                           time.perf_counter() + limits.remaining(), inst.problem.seed, max_nodes,
-                           max_lnodes, *guides)
+    buf, off, length = guides
+    guide = Paths(np.asarray(buf, np.int32), np.asarray(off, np.int64), np.asarray(length, np.int64),
+                  np.zeros(1, np.int64))
+    status, hist = _search(grid_of(inst), initial_priorities(inst), swap, time.perf_counter() + limits.remaining(),
+                           int(inst.problem.seed), max_nodes, max_lnodes, guide)
     if status == 1:
         raise PlanningError(f"lacam: no solution exists for these {inst.n} robots (every configuration explored)")
     if status == 2:
@@ -399,7 +399,6 @@ GUIDE_DENSITY = 0.075
 GUIDE_SHARE = 0.1              # at most this share of the time limit goes to the guide paths
 GUIDED_FACTOR = 2.0            # a guided LaCAM search gets this many times the guides' time ...
 GUIDED_MIN = 0.5               # ... but at least this many seconds, before LaCAM runs unguided
-REFINE_EXPANSIONS = 50_000     # per replanning search in `refine`: a refinement step must stay short
 
 
 def lacam(problem: Problem, limits: Limits) -> list[Path]:
@@ -433,210 +432,6 @@ def lacam(problem: Problem, limits: Limits) -> list[Path]:
     return history_to_paths(inst, search(inst, limits))
 
 
-@njit(cache=True)
-def _refine(nbr, dist, rows, unreach: int, starts, goals, d0, buf, poff, plen, xs, ys, index, width: int,
-            max_expand: int, deadline: float, target: int, seed: int, group: int):
-    """Large neighbourhood search: replan a delayed robot and the robots in its way, keep improvements.
-
-    Paths are cell-id runs in `buf` (robot a: buf[poff[a]:poff[a]+plen[a]], ending on
-    its goal when it arrives for good). Returns the new (buf, poff, plen, sum of costs, iterations).
-    """
-    n = nbr.shape[0]
-    na = starts.shape[0]
-    total = 0
-    for a in range(na):
-        total += plen[a]
-    seg, ta, meta = rs_new(n, 2 * total)
-    park_time = np.full(n, np.iinfo(np.int32).max, dtype=np.int32)
-    park_owner = np.full(n, -1, dtype=np.int32)
-    soc = 0
-    for a in range(na):
-        ta = reserve(seg, ta, meta, buf[poff[a]:poff[a] + plen[a]], a, park_time, park_owner)
-        soc += plen[a] - 1
-    used = 0
-    for a in range(na):
-        used = max(used, poff[a] + plen[a])
-    rng = np.array([np.uint64(seed) * np.uint64(2654435761) + np.uint64(1442695040888963407)], dtype=np.uint64)
-    members = np.empty(group, dtype=np.int32)
-    in_group = np.zeros(na, dtype=np.bool_)
-    tmp_off = np.empty(group, dtype=np.int64)
-    tmp_len = np.empty(group, dtype=np.int64)
-    tmp = np.empty(1024, dtype=np.int32)
-    fails = np.zeros(na, dtype=np.int32)    # recent fruitless tries per robot, to spread the effort
-    stamp = np.zeros(n + 1, dtype=np.int32)
-    queue = np.empty(n, dtype=np.int32)
-    it = 0
-    stale = 0
-    while soc > target:
-        it += 1
-        if now() > deadline:
-            break
-        # the seed: the most delayed of a few random robots (tournament), fresh failures discounted
-        a = -1
-        best = 0
-        for s in range(8):
-            r = rand_next(rng) % na
-            dl = (plen[r] - 1 - d0[r]) >> min(fails[r], 20)
-            if dl > best:
-                best = dl
-                a = r
-        if a < 0:
-            stale += 1
-            if stale > 64:
-                # the tournament keeps missing: look for any delayed robot at all
-                for r in range(na):
-                    if plen[r] - 1 > d0[r]:
-                        a = r
-                        break
-                if a < 0:
-                    break
-                for r in range(na):
-                    fails[r] = 0
-                stale = 0
-            else:
-                continue
-        # the group: a, then robots met along one of a's shortest paths at the matching steps
-        m = 0
-        members[m] = a
-        in_group[a] = True
-        m += 1
-        drow = dist[rows[a]]
-        v = starts[a]
-        t = 0
-        while m < group:
-            for dt in range(2):
-                b = rs_find(seg, ta, v, t + dt)
-                if b >= 0 and not in_group[b] and m < group:
-                    members[m] = b
-                    in_group[b] = True
-                    m += 1
-            b = park_owner[v]
-            if b >= 0 and park_time[v] <= t + 1 and not in_group[b] and m < group:
-                members[m] = b
-                in_group[b] = True
-                m += 1
-            if v == goals[a]:
-                break
-            # step to a random neighbour one closer to the goal
-            nxt = -1
-            cnt = 0
-            for j in range(nbr.shape[1]):
-                u = nbr[v, j]
-                if u < 0:
-                    break
-                if drow[u] < drow[v]:
-                    cnt += 1
-                    if rand_next(rng) % cnt == 0:
-                        nxt = u
-            v = nxt
-            t += 1
-        while m < min(group, na) and m < 3:
-            b = rand_next(rng) % na
-            if not in_group[b]:
-                members[m] = b
-                in_group[b] = True
-                m += 1
-        for j in range(m - 1, 0, -1):
-            r = rand_next(rng) % (j + 1)
-            x = members[j]
-            members[j] = members[r]
-            members[r] = x
-        old = 0
-        for j in range(m):
-            b = members[j]
-            old += plen[b] - 1
-            unreserve(seg, ta, meta, buf[poff[b]:poff[b] + plen[b]], park_time, park_owner)
-        # replan the group one robot at a time
-        ok = True
-        new = 0
-        filled = 0
-        done = 0
-        rest = 0
-        for j in range(m):
-            rest += d0[members[j]]
-        for j in range(m):
-            b = members[j]
-            rest -= d0[b]
-            # only paths that can still make the group cheaper are worth finding
-            f_max = old - 1 - new - rest
-            if f_max < d0[b]:
-                ok = False
-                break
-            path = sipp(nbr, dist[rows[b]], unreach, starts[b], goals[b], b, seg, ta, park_time, park_owner,
-                        xs, ys, index, width, max_expand, f_max, stamp, queue)
-            if path.shape[0] == 0:
-                ok = False
-                break
-            new += path.shape[0] - 1
-            ta = reserve(seg, ta, meta, path, b, park_time, park_owner)
-            done += 1
-            tmp = grow(tmp, filled + path.shape[0])
-            copy_into(tmp, filled, path, path.shape[0])
-            tmp_off[j] = filled
-            tmp_len[j] = path.shape[0]
-            filled += path.shape[0]
-            if new >= old:
-                ok = False      # cannot improve any more
-                break
-        if ok and new < old:
-            buf = grow(buf, used + filled)
-            for j in range(m):
-                b = members[j]
-                poff[b] = used + tmp_off[j]
-                plen[b] = tmp_len[j]
-                fails[b] = 0
-            copy_into(buf, used, tmp, filled)
-            used += filled
-            soc -= old - new
-        else:
-            for j in range(done):
-                b = members[j]
-                unreserve(seg, ta, meta, tmp[tmp_off[j]:tmp_off[j] + tmp_len[j]], park_time, park_owner)
-            for j in range(m):
-                b = members[j]
-                ta = reserve(seg, ta, meta, buf[poff[b]:poff[b] + plen[b]], b, park_time, park_owner)
-            fails[a] += 1
-        for j in range(m):
-            in_group[members[j]] = False
-        if used > 4 * total + 4096:
-            # compact the path buffer
-            live = 0
-            for b in range(na):
-                live += plen[b]
-            nb = np.empty(2 * live + 1024, dtype=np.int32)
-            pos = 0
-            for b in range(na):
-                copy_into(nb, pos, buf[poff[b]:poff[b] + plen[b]], plen[b])
-                poff[b] = pos
-                pos += plen[b]
-            buf = nb
-            used = pos
-            total = live
-    return buf, poff, plen, soc, it
-
-
-def trimmed(inst: Instance, hist: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Configurations [T, n] -> flat per-robot cell-id paths cut after each last arrival."""
-    away = hist != inst.goals[None, :]
-    last = np.where(away.any(axis=0), hist.shape[0] - np.argmax(away[::-1], axis=0), 0)
-    plen = (last + 1).astype(np.int64)
-    poff = np.concatenate(([0], np.cumsum(plen)[:-1])).astype(np.int64)
-    buf = np.concatenate([hist[:plen[i], i] for i in range(inst.n)]).astype(np.int32)
-    return buf, poff, plen
-
-
-def refine(inst: Instance, buf, poff, plen, seconds: float, target_ratio: float = 1.0, group: int = 8):
-    """Anytime improvement of a plan given as flat cell-id paths (see `trimmed`): at most
-    `seconds`, stopping early at `target_ratio` x the lower bound.
-    Returns (buf, poff, plen, sum of costs, iterations)."""
-    nbr, xs, ys, index, width = kernel_args(inst)
-    d0 = inst.start_distances()
-    target = int(np.floor(target_ratio * d0.sum()))
-    return _refine(nbr, inst.table.dist, inst.rows, inst.table.unreachable, inst.starts, inst.goals, d0,
-                   buf, poff.copy(), plen.copy(), xs, ys, index, width, min(max_expansions(inst), REFINE_EXPANSIONS),
-                   time.perf_counter() + seconds, target, inst.problem.seed, group)
-
-
 def warm_up(parts: tuple[str, ...] = ("guides", "search", "refine", "pibt")) -> float:
     """Loads the kernels of the fast planners on a tiny problem, compiling them the first time
     numba sees this code (tens of seconds; afterwards about a second from numba's cache), so
@@ -657,4 +452,3 @@ def warm_up(parts: tuple[str, ...] = ("guides", "search", "refine", "pibt")) -> 
         if "pibt" in parts:
             pibt(problem, Limits(600.0))
     return time.perf_counter() - began
-
