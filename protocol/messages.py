@@ -43,6 +43,7 @@ MAX_IMAGE_SIDE = 16_384          # camera image width and height, pixels
 MAX_TEXT_CHARS = 4_096           # any string
 MAX_REFUSED = 1_000_000          # entries of Record.refused
 MAX_KEYS = 256                   # keys of a free-form object (Record.truth, an entry of Record.refused)
+MAX_LANDMARKS = 65_536           # entries of WorldInfo.landmarks
 MAX_FLOAT = sys.float_info.max
 
 
@@ -78,7 +79,11 @@ Text = Annotated[str, MaxLen(MAX_TEXT_CHARS)]
 Finite = Annotated[float, Range(-MAX_FLOAT, MAX_FLOAT)]
 Positive = Annotated[float, Range(0.0, MAX_FLOAT, open_lo=True)]
 Object = Annotated[dict[Text, Any], MaxLen(MAX_KEYS)]
+NonNegative = Annotated[float, Range(0.0, MAX_FLOAT)]
 Status = Literal["idle", "ready", "stepping", "done", "error"]
+ImageEncoding = Literal["png", "jpeg"]
+# (marker id, centre east_m, centre north_m) in the local NED frame of CameraFrame
+Landmark = tuple[Annotated[int, Range(0, MAX_ROBOT_ID)], Finite, Finite]
 
 
 @dataclass(frozen=True)
@@ -187,7 +192,20 @@ class CameraFrame(Message):
     down_m: Finite
     yaw_rad: Finite
     time_s: Finite
-    png: Annotated[bytes, MaxLen(MAX_IMAGE_BYTES)]
+    png: Annotated[bytes, MaxLen(MAX_IMAGE_BYTES)]  # the image bytes, PNG or JPEG as `encoding` says
+    # Optional (v1-compatible) calibration and estimate quality. The pose above is the
+    # vehicle's own estimate at exposure, never ground truth; the sigmas are its stated
+    # 1-sigma uncertainty, as an autopilot's EKF reports it.
+    k1: Finite = 0.0   # Brown-Conrady distortion in OpenCV's order (k1, k2, p1, p2, k3)
+    k2: Finite = 0.0
+    p1: Finite = 0.0
+    p2: Finite = 0.0
+    k3: Finite = 0.0
+    roll_rad: Finite = 0.0    # estimated attitude at exposure (camera fixed to the body, nadir)
+    pitch_rad: Finite = 0.0
+    pose_sigma_m: NonNegative = 0.0
+    yaw_sigma_deg: NonNegative = 0.0
+    encoding: ImageEncoding = "png"
 
 
 @dataclass(frozen=True)
@@ -204,6 +222,12 @@ class WorldInfo(Message):
     home_lat: Annotated[float, Range(-90.0, 90.0)]
     home_lon: Annotated[float, Range(-180.0, 180.0)]
     home_alt_m: Finite
+    # Surveyed fiducials on the floor plane (optional): an OpenCV ArUco dictionary name such as
+    # "DICT_APRILTAG_36h11" ("" = none), the side of each marker's black square, and each marker's
+    # id and centre; a marker's top edge faces north.
+    landmark_family: Text = ""
+    landmark_size_m: NonNegative = 0.0
+    landmarks: Annotated[list[Landmark], MaxLen(MAX_LANDMARKS)] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
