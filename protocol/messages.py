@@ -104,6 +104,9 @@ class Plan(Message):
     path: Path
     goal: Cell
     start_tick: TickNo = 0
+    # The moves the path uses: 4 (orthogonal) or 8 (diagonals too); 0 = not stated, the
+    # robot's own configuration applies (what an older UAV means).
+    connectivity: Literal[0, 4, 8] = 0
 
 
 @dataclass(frozen=True)
@@ -463,11 +466,13 @@ def _converter(tp: Any, where: str, outer: int) -> Callable[[Any], Any]:
     if base is str:
         return _text_converter(_need(bound(meta, MaxLen), "string", where).n, bound(meta, Pattern), where)
     if origin is Literal:
+        # Literal strings or integers; `type(v) in kinds` keeps true out of an integer enum.
         allowed = frozenset(get_args(base))
-        expected = "one of " + ", ".join(sorted(allowed))
+        kinds = {type(a) for a in allowed}
+        expected = "one of " + ", ".join(sorted(map(str, allowed)))
 
         def conv(v: Any) -> Any:
-            if type(v) is str and v in allowed:
+            if type(v) in kinds and v in allowed:
                 return v
             raise _fail(where, expected, v)
         return conv

@@ -21,7 +21,9 @@ IDLE, READY, STEPPING, DONE, ERROR = "idle", "ready", "stepping", "done", "error
 
 
 def plan_problem(plan: Plan, robot_id: int, connectivity: int) -> str:
-    """Why `plan` cannot be executed by this robot ('' if it can)."""
+    """Why `plan` cannot be executed by this robot ('' if it can). The plan's own
+    connectivity, when it states one, wins over the robot's configured default."""
+    connectivity = plan.connectivity or connectivity
     if plan.robot != robot_id:
         return f"plan is for robot {plan.robot}, this is robot {robot_id}"
     if not plan.plan_id:

@@ -45,6 +45,14 @@ def test_malformed_plans_are_refused(p, conn, words):
     assert not ack.ok and words in ack.error and ack.robot == 0 and m.state == "idle"
 
 
+def test_the_plan_states_its_connectivity():
+    diagonal = [(0, 0), (1, 1)]
+    assert RobotMachine(0, 4).on_plan(Plan(robot=0, plan_id="p8", path=diagonal, goal=(1, 1), connectivity=8)).ok
+    refused = RobotMachine(0, 8).on_plan(Plan(robot=0, plan_id="p4", path=diagonal, goal=(1, 1), connectivity=4))
+    assert not refused.ok and "not a 4-connected" in refused.error
+    assert RobotMachine(0, 8).on_plan(plan(diagonal)).ok   # not stated: the robot's own setting
+
+
 def test_a_plan_is_walked_and_done_is_raised_once():
     m = RobotMachine(0)
     assert m.on_plan(plan([(0, 0), (1, 0), (1, 1)])).ok and m.state == "ready"

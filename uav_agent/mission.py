@@ -33,6 +33,7 @@ ABORT_LAND_TIMEOUT_S = 60.0
 RELOOK_ROUNDS = 2          # closer looks at markers whose id did not decode
 RELOOK_MAX_CELLS = 20
 RELOOK_MIN_ALT_M = 3.0
+PLAN_RESEND_S = 2.0        # a plan not acknowledged within this is put again
 MONITOR_FIRST = 25         # auto monitoring: the first image after this many ticks ...
 MONITOR_SHARE = 0.2        # ... then whenever the images so far cost at most this share of execution time
 
@@ -367,17 +368,27 @@ class Mission:
                                           f"within {self.cfg.startup_timeout_s:g} s")
         self.plan = plan
         self.goal_of.update(plan.goals)
-        for rid in ids:
-            self.transport.put(self.keys.plan(rid), encode(Plan(
-                robot=rid, plan_id=plan.plan_id, path=plan.paths[rid], goal=plan.goals[rid],
-                start_tick=plan.start_tick, seq=self._next())))
         pid = plan.plan_id
         acked = lambda r: self.fleet.acks.get(r) is not None and self.fleet.acks[r].plan_id == pid  # noqa: E731
+        deadline = time.monotonic() + self.cfg.startup_timeout_s
         try:
-            self.fleet.wait_until(lambda: all(acked(r) for r in ids), self.cfg.startup_timeout_s,
-                                  lambda: f"robots {[r for r in ids if not acked(r)][:10]} did not acknowledge "
-                                          f"plan {pid}",
-                                  abort=lambda: self.fleet.lost_among(ids))
+            while True:
+                # A plan put before a robot's subscriber was ready is lost; robots acknowledge a
+                # resent plan again, so resending to the silent ones is safe.
+                for rid in (r for r in ids if not acked(r)):
+                    self.transport.put(self.keys.plan(rid), encode(Plan(
+                        robot=rid, plan_id=pid, path=plan.paths[rid], goal=plan.goals[rid],
+                        start_tick=plan.start_tick, connectivity=self.cfg.connectivity, seq=self._next())))
+                try:
+                    self.fleet.wait_until(lambda: all(acked(r) for r in ids),
+                                          min(PLAN_RESEND_S, max(0.0, deadline - time.monotonic())),
+                                          lambda: f"robots {[r for r in ids if not acked(r)][:10]} did not "
+                                                  f"acknowledge plan {pid} within {self.cfg.startup_timeout_s:g} s",
+                                          abort=lambda: self.fleet.lost_among(ids))
+                    break
+                except MissionError:
+                    if time.monotonic() >= deadline or self.fleet.lost_among(ids):
+                        raise
         except MissionError as exc:
             if first:
                 raise
