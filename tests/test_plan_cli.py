@@ -177,7 +177,24 @@ def test_bench_movingai_subprocess(tmp_path):
     assert {r["scen"] for r in runs} == {"random-1", "random-2"}
 
 
+def test_bench_command_times_whole_processes(paper_data, tmp_path):
+    out = tmp_path / "out"
+    p = run_cli("bench", "command", "--sizes", "3,5", "--repeat", "2", "--data", str(paper_data),
+                "--out", str(out), timeout=240)
+    assert p.returncode == 0, p.stderr
+    rows = list(csv.DictReader((out / "command.csv").open()))
+    assert [r["agents"] for r in rows] == ["3", "5"]
+    for r in rows:
+        # A whole process holds its own in-process time and more (at least the interpreter's start).
+        assert float(r["median_wall_s"]) > float(r["median_in_process_s"]) > 0
+        assert float(r["min_wall_s"]) <= float(r["median_wall_s"]) <= float(r["max_wall_s"])
+    assert rows[0]["lacam3_whole_s"] == "0.11" and rows[1]["lacam3_whole_s"] == ""
+    assert len(list(csv.DictReader((out / "command-runs.csv").open()))) == 4
+    assert "whole command" in (out / "command.md").read_text()
+
+
 @pytest.mark.parametrize("argv, match", [
+    (["bench", "command", "--sizes", "0"], "--sizes"),
     (["bench", "paper", "--sizes", "3,x"], "--sizes"),
     (["bench", "paper", "--pipelines", "default,warp"], "unknown planner"),
     (["bench", "paper", "--data", "/nonexistent"], "benchmark file not found"),

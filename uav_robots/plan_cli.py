@@ -140,7 +140,7 @@ def add_bench_parser(subparsers) -> argparse.ArgumentParser:
     from .bench import PAPER_SIZES
     p = subparsers.add_parser("bench", help="benchmarks: the paper's Table 2 and MovingAI instances",
                               description="Run the planning benchmarks; writes a markdown table and CSV files.")
-    sub = p.add_subparsers(dest="bench", metavar="{paper,movingai}", required=True)
+    sub = p.add_subparsers(dest="bench", metavar="{paper,movingai,command}", required=True)
 
     def common(q: argparse.ArgumentParser, limit: float) -> None:
         q.add_argument("--time-limit", type=_positive_float, default=limit,
@@ -177,12 +177,25 @@ def add_bench_parser(subparsers) -> argparse.ArgumentParser:
     pm.add_argument("--planner", default=DEFAULT_PLANNER, help=f"{', '.join(PLANNERS)} (default {DEFAULT_PLANNER})")
     common(pm, 60.0)
     pm.set_defaults(func=cmd_bench)
+
+    pc = sub.add_parser("command", help="the whole `uav-robots plan` command, timed as fresh processes",
+                        description="Wall time of whole `uav-robots plan` processes on the paper warehouse with the "
+                                    "scenario's own pairs, beside their in-process time and LaCAM3's whole-process "
+                                    "reference: the like-for-like comparison with a solver binary.")
+    pc.add_argument("--sizes", default="3,10,25,50,100,500", help="robot counts (comma-separated)")
+    pc.add_argument("--repeat", type=_positive_int, default=5, help="processes per size; the median is reported")
+    pc.add_argument("--data", metavar="DIR", help="a benchmark data directory laid out like scenarios/data/")
+    pc.add_argument("--out", default="bench-out", help="directory for the markdown and CSV (default bench-out/)")
+    pc.set_defaults(func=cmd_bench)
     return p
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
     from . import bench
     try:
+        if args.bench == "command":
+            from .bench_command import run_command_bench
+            return run_command_bench(args)
         return bench.run_paper(args) if args.bench == "paper" else bench.run_movingai(args)
     except UavRobotsError as exc:
         return _fail(exc)
