@@ -24,11 +24,13 @@ class Client:
         self.mav = mavlink.MAVLink(self, system_id, GCS_COMPID)
         self.parser = mavlink.MAVLink(None, 0, 0)
         self.parser.robust_parsing = True
-        if key is not None:
-            self.mav.signing.secret_key = key
+        if key is not None:  # sign what it sends, and check what it receives
+            for mav in (self.mav, self.parser):
+                mav.signing.secret_key = key
+                mav.signing.timestamp = int((time.time() - 1420070400) * 100_000)
             self.mav.signing.sign_outgoing = True
-            self.mav.signing.timestamp = int((time.time() - 1420070400) * 100_000)
         self.pending: list = []
+        self.statustexts: list = []  # every STATUSTEXT received, whatever was being waited for
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._beat = None
@@ -59,20 +61,21 @@ class Client:
         with self._lock:
             self.mav.send(msg)
 
-    def recv(self, kind: str, timeout: float = 3.0, cond=lambda m: True):
+    def recv(self, kind: str | tuple[str, ...], timeout: float = 3.0, cond=lambda m: True):
         """The next message of type `kind` satisfying `cond`; fails the test on timeout."""
         msg = self.poll(kind, timeout, cond)
         if msg is None:
             pytest.fail(f"no {kind} within {timeout} s")
         return msg
 
-    def poll(self, kind: str, timeout: float, cond=lambda m: True):
-        """The next message of type `kind` satisfying `cond`, or None after `timeout` s."""
+    def poll(self, kind: str | tuple[str, ...], timeout: float, cond=lambda m: True):
+        """The next message of type `kind` (or one of the types) satisfying `cond`, or None after `timeout` s."""
+        kinds = (kind,) if isinstance(kind, str) else kind
         deadline = time.monotonic() + timeout
         while True:
             while self.pending:
                 msg = self.pending.pop(0)
-                if msg.get_type() == kind and cond(msg):
+                if msg.get_type() in kinds and cond(msg):
                     return msg
             remaining = deadline - time.monotonic()
             if remaining <= 0:
@@ -84,7 +87,20 @@ class Client:
                 continue
             if self.dest is None:
                 self.dest = addr  # a listening ground station answers whoever called it
-            self.pending.extend(self.parser.parse_buffer(data) or [])
+            msgs = self.parser.parse_buffer(data) or []
+            self.statustexts += [msg for msg in msgs if msg.get_type() == "STATUSTEXT"]
+            self.pending.extend(msgs)
+
+    def said(self, words: str, timeout: float = 3.0):
+        """The first STATUSTEXT received (now or within `timeout`) that contains `words`."""
+        deadline = time.monotonic() + timeout
+        while True:
+            found = next((msg for msg in self.statustexts if words in msg.text), None)
+            if found is not None:
+                return found
+            if time.monotonic() > deadline:
+                pytest.fail(f"no STATUSTEXT with {words!r} within {timeout} s: {[t.text for t in self.statustexts]}")
+            self.poll("STATUSTEXT", 0.05)
 
     def command(self, command: int, *params: float, target_component: int = 1, timeout: float = 3.0) -> int:
         p = list(params) + [0.0] * (7 - len(params))
@@ -94,3 +110,18 @@ class Client:
     def close(self) -> None:
         self.stop_heartbeats()
         self.sock.close()
+
+
+def set_param(client: Client, name: str, value: float) -> float:
+    """PARAM_SET and the vehicle's echo: the value it stored."""
+    client.send(client.mav.param_set_encode(1, 1, name.encode(), value, mavlink.MAV_PARAM_TYPE_REAL32))
+    return client.recv("PARAM_VALUE", cond=lambda m: m.param_id == name).param_value
+
+
+def set_mode(client: Client, main: int, sub: int = 0) -> int:
+    """DO_SET_MODE to PX4 mode (main, sub)."""
+    return client.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub)
+
+
+def px4_mode(heartbeat) -> tuple[int, int]:
+    return (heartbeat.custom_mode >> 16) & 0xFF, (heartbeat.custom_mode >> 24) & 0xFF

@@ -357,11 +357,15 @@ class Autopilot:
         action = DLL_ACTIONS.get(int(self._params.get("NAV_DLL_ACT")))
         lost = self._datalink.silent_for(wall_now) > self._params.get("COM_DL_LOSS_T")
         if lost and not self._link_lost and action is not None:
-            self._journal.say(CRITICAL, "Data link lost")
-            if self._mode not in FLOWN_BACK:
-                self._failsafe(Mode.HOLD, "data link lost")
+            if self._mode in FLOWN_BACK:
+                self._journal.say(CRITICAL, "Data link lost")
+            else:
+                delay = self._params.get("COM_FAIL_ACT_T")
+                self._journal.say(CRITICAL, "Data link lost: holding" + (
+                    f", {action.name} in {delay:g} s" if action is not Mode.HOLD else ""))
+                self._enter_hold("data link lost")
                 if action is not Mode.HOLD:
-                    self._pending = (action, wall_now + self._params.get("COM_FAIL_ACT_T"), "data link lost")
+                    self._pending = (action, wall_now + delay, "data link lost")
         elif not lost and self._link_lost:
             self._journal.say(INFO, "Data link regained")
             if self._pending is not None and self._pending[2] == "data link lost":

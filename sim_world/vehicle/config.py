@@ -80,3 +80,21 @@ def check_exposure(url: str, bind_host: str) -> None:
         what = "would accept commands from any host that reaches it" if listening else "is not on this machine"
         raise MissionError(f"MAVLink link {url!r} {what}, but the vehicle is bound to loopback "
                            f"({bind_host}); open it deliberately with --mavlink-bind {host if listening else '0.0.0.0'}")
+
+
+def read_signing_key(path: str) -> bytes:
+    """A MAVLink 2 signing key from `path`: 32 raw bytes, or 64 hex digits (as `openssl rand -hex 32` writes)."""
+    try:
+        data = open(path, "rb").read()
+    except OSError as exc:
+        raise MissionError(f"--mavlink-key {path}: {exc.strerror or exc}") from None
+    if len(data) == 32:
+        return data
+    try:
+        key = bytes.fromhex(data.decode("ascii").strip())
+    except (UnicodeDecodeError, ValueError):
+        key = b""
+    if len(key) != 32:
+        raise MissionError(f"--mavlink-key {path}: not a 32-byte key (32 raw bytes or 64 hex digits), "
+                           f"got {len(data)} bytes")
+    return key
