@@ -125,3 +125,11 @@ def set_mode(client: Client, main: int, sub: int = 0) -> int:
 
 def px4_mode(heartbeat) -> tuple[int, int]:
     return (heartbeat.custom_mode >> 16) & 0xFF, (heartbeat.custom_mode >> 24) & 0xFF
+
+
+def wait_for(predicate, timeout: float = 5.0, what: str = "condition") -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            pytest.fail(f"{what} not met within {timeout} s")
+        time.sleep(0.01)

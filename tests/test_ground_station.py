@@ -20,7 +20,7 @@ from protocol.errors import MissionError
 from protocol.geo import ned_to_geo
 from sim_world.vehicle import LandedState, Mode, Vehicle, VehicleConfig
 
-from mavlink_gcs import Client, px4_mode, set_mode, set_param
+from mavlink_gcs import Client, px4_mode, set_mode, set_param, wait_for
 
 NAN = float("nan")
 m = mavlink
@@ -35,26 +35,11 @@ def free_port(kind=socket.SOCK_DGRAM) -> int:
 
 
 @pytest.fixture
-def vehicle():
-    v = Vehicle(VehicleConfig(url="udpin:127.0.0.1:0", time_scale=20.0)).start()
-    yield v
-    v.stop()
-
-
-@pytest.fixture
 def gcs(vehicle):
     c = Client(vehicle.local_address[1], heartbeat_hz=4.0)
     c.recv("HEARTBEAT")
     yield c
     c.close()
-
-
-def wait_for(predicate, timeout: float = 5.0, what: str = "condition") -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            pytest.fail(f"{what} not met within {timeout} s")
-        time.sleep(0.01)
 
 
 def item(seq: int, command: int, north: float = 0.0, east: float = 0.0, alt: float = 0.0, p1: float = 0.0,
@@ -226,7 +211,7 @@ def test_battery_drains_and_a_critical_battery_brings_it_back(vehicle, gcs):
     said(gcs, "Failsafe: critical battery, RTL")
     gcs.recv("HEARTBEAT", cond=lambda hb: px4_mode(hb) in ((4, 5), (4, 6)))
     wait_for(lambda: not vehicle.armed, 15.0, "battery failsafe landing")
-    assert vehicle.landed_state == LandedState.ON_GROUND
+    assert vehicle.landed_state == LandedState.ON_GROUND and vehicle.battery_remaining < 0.07
     assert gcs.recv("BATTERY_STATUS").charge_state >= m.MAV_BATTERY_CHARGE_STATE_CRITICAL
 
 
@@ -289,7 +274,7 @@ def test_mavsdk_heartbeats_keep_the_datalink(udp_port):
     vehicle = Vehicle(VehicleConfig(url=f"udpout:127.0.0.1:{udp_port}", time_scale=20.0)).start()
     flight = Flight(f"udpin://127.0.0.1:{udp_port}")
     try:
-        vehicle._params.set("COM_DL_LOSS_T", 2.5)  # MAVSDK beats at 1 Hz
+        assert vehicle.set_param("COM_DL_LOSS_T", 2.5) == 2.5  # MAVSDK beats at 1 Hz
         flight.connect(timeout_s=10)
         flight.takeoff(5.0, timeout_s=15)
         time.sleep(4.0)

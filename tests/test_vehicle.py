@@ -15,16 +15,9 @@ from protocol.errors import MissionError
 from protocol.geo import cell_to_ned, check_home, geo_to_ned, ned_to_cell, ned_to_geo
 from sim_world.vehicle import LandedState, Mode, Vehicle, VehicleConfig, step_toward, step_yaw
 
-from mavlink_gcs import GCS_SYSID, Client
+from mavlink_gcs import GCS_SYSID, Client, wait_for
 
 NAN = float("nan")
-
-
-@pytest.fixture
-def vehicle():
-    v = Vehicle(VehicleConfig(url="udpin:127.0.0.1:0", time_scale=20.0)).start()
-    yield v
-    v.stop()
 
 
 @pytest.fixture
@@ -33,14 +26,6 @@ def client(vehicle):
     c.recv("HEARTBEAT")  # the vehicle has learned our address
     yield c
     c.close()
-
-
-def wait_for(predicate, timeout: float = 5.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            pytest.fail("condition not met in time")
-        time.sleep(0.01)
 
 
 # --- geo and kinematics (pure) --------------------------------------------------------

@@ -139,6 +139,11 @@ class Vehicle:
         """Fraction of the battery's capacity left, 0..1."""
         return self._battery.remaining
 
+    def set_param(self, name: str, value: float) -> float:
+        """Set a parameter as PARAM_SET would (within its range); returns the value stored."""
+        self._params.set(name, value)
+        return self._params.get(name)
+
     def address(self, link: str = "vehicle") -> tuple[str, int] | None:
         """The (host, port) the `vehicle` or `gcs` link's UDP socket is bound to, once started."""
         return self._link.address(link)
