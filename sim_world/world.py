@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 import threading
 import time
@@ -276,6 +277,11 @@ class World(Lifecycle):
         if cfg.mavlink:
             from .vehicle import Vehicle
             self.vehicle = Vehicle(vehicle_config(cfg))
+            # The geofence must not cut off part of a large floor: the farthest corner, with a margin.
+            h, w = self.truth.free.shape
+            reach = 1.2 * math.hypot(h, w) * cfg.cell_size_m + 10.0
+            if reach > self.vehicle.param("GF_MAX_HOR_DIST"):
+                self.vehicle.set_param("GF_MAX_HOR_DIST", reach)
             self.vehicle.start()
         if self.transport is None:
             c = self.cfg

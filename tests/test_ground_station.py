@@ -164,6 +164,8 @@ def test_statustext_on_every_mode_change_and_refusal(vehicle, gcs):
     assert said(gcs, "Takeoff denied: disarmed").severity == m.MAV_SEVERITY_CRITICAL
     assert gcs.command(m.MAV_CMD_DO_SET_SERVO, 1, 1500) == m.MAV_RESULT_UNSUPPORTED
     said(gcs, "Command DO_SET_SERVO refused: UNSUPPORTED")
+    assert gcs.command(m.MAV_CMD_GET_HOME_POSITION) == m.MAV_RESULT_ACCEPTED  # MAVProxy asks so at connect
+    gcs.recv("HOME_POSITION")
     assert set_mode(gcs, 1) == m.MAV_RESULT_DENIED  # MANUAL needs sticks
     said(gcs, "Mode MANUAL not available")
     assert set_mode(gcs, 4, 5) == m.MAV_RESULT_DENIED  # RTL on the ground
@@ -243,6 +245,9 @@ def test_geofence_refuses_far_targets_clamps_offboard_and_a_breach_returns(vehic
     assert set_param(gcs, "GF_ACTION", 3.0) == 3.0  # return
     assert set_param(gcs, "GF_MAX_HOR_DIST", 10.0) == 10.0  # now the vehicle is outside
     said(gcs, "Geofence violated")
+    fence = m.MAV_SYS_STATUS_GEOFENCE  # what MAVProxy's fence module reads as "fence breach"
+    status = gcs.recv("SYS_STATUS", cond=lambda st: not st.onboard_control_sensors_health & fence)
+    assert status.onboard_control_sensors_present & status.onboard_control_sensors_enabled & fence
     gcs.recv("HEARTBEAT", cond=lambda hb: px4_mode(hb) == (4, 5))
     wait_for(lambda: not vehicle.armed, 15.0, "geofence return")
     assert math.hypot(*vehicle.pose()[:2]) < 0.35
@@ -388,3 +393,21 @@ def test_run_with_a_ground_station_completes_while_it_watches(tmp_path):
     finally:
         gcs.close()
         stop(run)
+
+
+def test_the_world_widens_the_geofence_to_cover_a_large_floor():
+    from protocol.transport import MemoryBus, MemoryTransport
+    from sim_world.world import World, WorldConfig
+
+    small = World(WorldConfig(fleet="t", robots=2, mavlink="udpin:127.0.0.1:0"), MemoryTransport(MemoryBus()))
+    big = World(WorldConfig(fleet="t", robots=2, mavlink="udpin:127.0.0.1:0", cell_size_m=100.0),
+                MemoryTransport(MemoryBus()))
+    try:
+        small.start()
+        big.start()
+        assert small.vehicle.param("GF_MAX_HOR_DIST") == 1000.0  # the default covers it
+        h, w = big.truth.free.shape
+        assert big.vehicle.param("GF_MAX_HOR_DIST") > math.hypot(h, w) * 100.0
+    finally:
+        small.close()
+        big.close()

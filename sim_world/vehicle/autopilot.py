@@ -97,6 +97,15 @@ class Autopilot:
                 return LandedState.LANDING
             return LandedState.IN_AIR
 
+    @property
+    def fence_enabled(self) -> bool:
+        return self._fence.enabled
+
+    @property
+    def fence_breached(self) -> bool:
+        with self._lock:
+            return self._breached
+
     def status(self) -> tuple[bool, Mode, LandedState]:
         """(armed, mode, landed state) read together: what a heartbeat must announce."""
         with self._lock:

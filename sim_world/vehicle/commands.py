@@ -75,6 +75,8 @@ class Commands:
             m.MAV_CMD_NAV_LOITER_UNLIM: lambda p, frame: (autopilot.loiter(), None),
             m.MAV_CMD_DO_CHANGE_SPEED: lambda p, frame: (autopilot.change_speed(int(p[0]), p[1]), None),
             m.MAV_CMD_REQUEST_MESSAGE: self._request_message,
+            m.MAV_CMD_GET_HOME_POSITION:  # deprecated for REQUEST_MESSAGE, still sent by MAVProxy
+                lambda p, frame: (m.MAV_RESULT_ACCEPTED, telemetry.message(m.MAVLINK_MSG_ID_HOME_POSITION)),
             m.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
                 lambda p, frame: (m.MAV_RESULT_ACCEPTED, telemetry.message(m.MAVLINK_MSG_ID_AUTOPILOT_VERSION)),
             m.MAV_CMD_SET_MESSAGE_INTERVAL: lambda p, frame: (telemetry.set_interval(p[0], p[1]), None),

@@ -19,6 +19,10 @@ class Geofence:
         hor, ver = self._params.get("GF_MAX_HOR_DIST"), self._params.get("GF_MAX_VER_DIST")
         return (hor if hor > 0 else math.inf), (ver if ver > 0 else math.inf)
 
+    @property
+    def enabled(self) -> bool:
+        return any(math.isfinite(limit) for limit in self._limits())
+
     def violation(self, point: Vec3) -> str | None:
         """Why `point` (NED from home) is outside the fence, None if inside."""
         hor, ver = self._limits()

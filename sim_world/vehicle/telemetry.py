@@ -154,8 +154,11 @@ class Telemetry:
                    | s.MAV_SYS_STATUS_SENSOR_YAW_POSITION | s.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
                    | s.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL | s.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
                    | s.MAV_SYS_STATUS_AHRS | s.MAV_SYS_STATUS_SENSOR_BATTERY | s.MAV_SYS_STATUS_PREARM_CHECK)
+        fence = s.MAV_SYS_STATUS_GEOFENCE
+        enabled = sensors | (fence if self._autopilot.fence_enabled else 0)
+        healthy = enabled & ~(fence if self._autopilot.fence_breached else 0)  # ground stations show a breach
         volts, amps, _, remaining = self._battery.reading()
-        return self._encoder.sys_status_encode(sensors, sensors, sensors, 200, round(volts * 1000), round(amps * 100),
+        return self._encoder.sys_status_encode(enabled, enabled, healthy, 200, round(volts * 1000), round(amps * 100),
                                                round(remaining * 100), 0, 0, 0, 0, 0, 0)
 
     def _battery_status(self):

@@ -139,6 +139,9 @@ class Vehicle:
         """Fraction of the battery's capacity left, 0..1."""
         return self._battery.remaining
 
+    def param(self, name: str) -> float:
+        return self._params.get(name)
+
     def set_param(self, name: str, value: float) -> float:
         """Set a parameter as PARAM_SET would (within its range); returns the value stored."""
         self._params.set(name, value)
