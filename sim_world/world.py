@@ -432,6 +432,7 @@ class World(Lifecycle):
         state = v.landed_state
         return {"url": self.cfg.mavlink, "armed": v.armed, "landed_state": getattr(state, "name", str(state)),
                 "max_altitude_m": round(v.max_altitude_m, 2), "bad_frames": v.bad_frames,
+                "gcs": self.cfg.gcs, "refused_unsigned": v.refused_unsigned,
                 "events": [[round(t, 2), text] for t, text in v.events]}
 
     def _on_camera(self, q: IncomingQuery) -> None:

@@ -4,8 +4,8 @@ ground-station link and the loopback binding. Real MAVLink over UDP on loopback;
 mission flight and `uav-robots run --gcs` use the real processes."""
 from __future__ import annotations
 
+import json
 import math
-import os
 import signal
 import socket
 import subprocess
@@ -378,21 +378,26 @@ def test_world_vehicle_flies_a_mission_uploaded_by_a_ground_station():
         stop(world)
 
 
-def test_run_with_a_ground_station_completes_while_it_watches(tmp_path):
+def test_run_with_a_signed_ground_station_completes_while_it_watches(tmp_path):
+    key_file = tmp_path / "key.hex"
+    key_file.write_text(KEY.hex() + "\n")  # as `openssl rand -hex 32` writes it
     gcs_port = free_port()
-    gcs = Client(None, listen=gcs_port)
+    gcs = Client(None, listen=gcs_port, key=KEY)
     run = subprocess.Popen([sys.executable, "-m", "uav_robots", "run", "--robots", "4", "--quiet",
-                            "--gcs", f"udpout:127.0.0.1:{gcs_port}", "--out", str(tmp_path / "out")],
+                            "--gcs", f"udpout:127.0.0.1:{gcs_port}", "--mavlink-key", str(key_file),
+                            "--out", str(tmp_path / "out")],
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, stdin=subprocess.DEVNULL)
     try:
         hb = gcs.recv("HEARTBEAT", 60.0)
-        assert hb.type == m.MAV_TYPE_QUADROTOR and hb.autopilot == m.MAV_AUTOPILOT_PX4
+        assert hb.type == m.MAV_TYPE_QUADROTOR and hb.autopilot == m.MAV_AUTOPILOT_PX4 and hb.get_signed()
         gcs.recv("GLOBAL_POSITION_INT", 120.0, cond=lambda p: p.relative_alt > 2_000)  # the UAV flies it
         out, _ = run.communicate(timeout=300)
         assert run.returncode == 0, out[-3000:]
     finally:
         gcs.close()
         stop(run)
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["completed"] is True
 
 
 def test_the_world_widens_the_geofence_to_cover_a_large_floor():

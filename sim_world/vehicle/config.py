@@ -85,7 +85,8 @@ def check_exposure(url: str, bind_host: str) -> None:
 def read_signing_key(path: str) -> bytes:
     """A MAVLink 2 signing key from `path`: 32 raw bytes, or 64 hex digits (as `openssl rand -hex 32` writes)."""
     try:
-        data = open(path, "rb").read()
+        with open(path, "rb") as f:
+            data = f.read(4096)
     except OSError as exc:
         raise MissionError(f"--mavlink-key {path}: {exc.strerror or exc}") from None
     if len(data) == 32:
