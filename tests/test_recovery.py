@@ -8,7 +8,6 @@ from __future__ import annotations
 import queue
 import re
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -214,14 +213,10 @@ def _vehicle_port(run: Run) -> int:
     ("land", "LAND mode"),
     ("rtl on the --gcs link", "RETURN_TO_LAUNCH mode"),
 ])
-def test_a_second_ground_station_takes_the_vehicle(tmp_path, command, words):
+def test_a_second_ground_station_takes_the_vehicle(tmp_path, udp_port, command, words):
     from pymavlink import mavutil
 
-    gcs_port = None
-    if command.endswith("--gcs link"):   # the operator's own link, as QGroundControl would have it
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-            s.bind(("127.0.0.1", 0))
-            gcs_port = s.getsockname()[1]
+    gcs_port = udp_port if command.endswith("--gcs link") else None  # the operator's own link, like QGroundControl's
     run = Run(tmp_path / "out", "--robots", "6", "--tick-rate", "4",
               *(["--gcs", f"udpout:127.0.0.1:{gcs_port}"] if gcs_port else []))
     if gcs_port:
