@@ -265,9 +265,9 @@ def test_datalink_loss_holds_then_returns(vehicle, gcs):
     gcs.stop_heartbeats()
     t = time.monotonic()
     assert said(gcs, "Data link lost: holding, RTL in 1 s", 3.0).severity == m.MAV_SEVERITY_CRITICAL
-    assert vehicle.mode == Mode.HOLD and time.monotonic() - t >= 0.8
+    assert vehicle.mode == Mode.HOLD and time.monotonic() - t >= 0.7  # last heartbeat <= 0.25 s before t
     gcs.recv("HEARTBEAT", 3.0, cond=lambda hb: px4_mode(hb) == (4, 5))  # COM_FAIL_ACT_T later: RTL
-    assert time.monotonic() - t >= 1.8
+    assert time.monotonic() - t >= 1.7
     wait_for(lambda: not vehicle.armed, 15.0, "datalink-loss return")
     assert math.hypot(*vehicle.pose()[:2]) < 0.35
 
