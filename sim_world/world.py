@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 import threading
 import time
@@ -52,6 +53,9 @@ class WorldConfig:
     home_lon: float = HOME[1]
     home_alt_m: float = HOME[2]
     mavlink: str | None = "udpout:127.0.0.1:14540"   # None: no vehicle (tests of the services alone)
+    gcs: str | None = None            # a second MAVLink link, for a ground station
+    mavlink_key: str | None = None    # a file with the MAVLink 2 signing key of the gcs link
+    mavlink_bind: str = "127.0.0.1"   # the address the vehicle's sockets are bound to
     time_scale: float = 1.0
     camera: dict[str, Any] = field(default_factory=dict)  # sim_world.camera.CameraModel fields
     camera_height_m: float = 0.3      # lens above the floor when the vehicle sits on it
@@ -74,6 +78,25 @@ class WorldConfig:
             raise UavRobotsError(f"time scale must be positive, got {self.time_scale}")
         if self.connect and self.listen:
             raise UavRobotsError("give --connect or --listen, not both")
+        if self.mavlink:
+            vehicle_config(self)
+        elif self.gcs or self.mavlink_key:
+            raise UavRobotsError("--gcs and --mavlink-key need a vehicle (--mavlink is none)")
+
+
+def vehicle_config(cfg: WorldConfig) -> Any:
+    """The vehicle's configuration, checked (links, bind address, signing key): one-line errors."""
+    from .vehicle.config import VehicleConfig, read_signing_key
+
+    if cfg.mavlink_key and not cfg.gcs:
+        raise UavRobotsError("--mavlink-key signs the ground-station link: give --gcs URL too")
+    try:  # bad input, not a failed mission: exit 2
+        key = read_signing_key(cfg.mavlink_key) if cfg.mavlink_key else None
+        return VehicleConfig(url=cfg.mavlink or "udpout:127.0.0.1:14540", home_lat=cfg.home_lat,
+                             home_lon=cfg.home_lon, home_alt_m=cfg.home_alt_m, time_scale=cfg.time_scale,
+                             gcs_url=cfg.gcs, signing_key=key, bind_host=cfg.mavlink_bind)
+    except MissionError as exc:
+        raise UavRobotsError(str(exc)) from None
 
 
 @dataclass(frozen=True)
@@ -252,9 +275,13 @@ class World(Lifecycle):
             except TypeError as exc:
                 raise UavRobotsError(f"camera options: {exc}") from None
         if cfg.mavlink:
-            from .vehicle import Vehicle, VehicleConfig
-            self.vehicle = Vehicle(VehicleConfig(url=cfg.mavlink, home_lat=cfg.home_lat, home_lon=cfg.home_lon,
-                                                 home_alt_m=cfg.home_alt_m, time_scale=cfg.time_scale))
+            from .vehicle import Vehicle
+            self.vehicle = Vehicle(vehicle_config(cfg))
+            # The geofence must not cut off part of a large floor: the farthest corner, with a margin.
+            h, w = self.truth.free.shape
+            reach = 1.2 * math.hypot(h, w) * cfg.cell_size_m + 10.0
+            if reach > self.vehicle.param("GF_MAX_HOR_DIST"):
+                self.vehicle.set_param("GF_MAX_HOR_DIST", reach)
             self.vehicle.start()
         if self.transport is None:
             c = self.cfg
@@ -310,7 +337,9 @@ class World(Lifecycle):
         h, w = self.truth.free.shape
         where = getattr(self.transport, "where", "zenoh")
         return (f"fleet {self.cfg.fleet}, map {self.truth.name} {w}x{h}, {len(self.truth.starts)} robots, "
-                f"zenoh {where}, mavlink {self.cfg.mavlink or 'off'}")
+                f"zenoh {where}, mavlink {self.cfg.mavlink or 'off'}"
+                + (f", ground station {self.cfg.gcs}" + (" (signed)" if self.cfg.mavlink_key else "")
+                   if self.cfg.gcs else ""))
 
     # ------------------------------------------------------------ handlers
     def _next_seq(self) -> int:
@@ -403,6 +432,7 @@ class World(Lifecycle):
         state = v.landed_state
         return {"url": self.cfg.mavlink, "armed": v.armed, "landed_state": getattr(state, "name", str(state)),
                 "max_altitude_m": round(v.max_altitude_m, 2), "bad_frames": v.bad_frames,
+                "gcs": self.cfg.gcs, "refused_unsigned": v.refused_unsigned,
                 "events": [[round(t, 2), text] for t, text in v.events]}
 
     def _on_camera(self, q: IncomingQuery) -> None:
@@ -511,6 +541,7 @@ def add_world_arguments(p: argparse.ArgumentParser) -> None:
     add_session_arguments(p)
     p.add_argument("--mavlink", default="udpout:127.0.0.1:14540", metavar="URL",
                    help="the vehicle's MAVLink link (pymavlink URL); 'none' runs without a vehicle")
+    add_ground_station_arguments(p)
     p.add_argument("--time-scale", type=float, default=1.0, metavar="X", help="simulated seconds per second")
     p.add_argument("--cell-size", type=float, default=1.0, metavar="M", help="grid cell size in metres")
     p.add_argument("--connectivity", type=int, choices=(4, 8), default=4)
@@ -523,6 +554,18 @@ def add_world_arguments(p: argparse.ArgumentParser) -> None:
                         "it started, and the robot is told it arrived (only a camera sees the truth)")
     p.add_argument("--move-timeout", type=float, default=MOVE_BATCH_TIMEOUT_S, metavar="S",
                    help="how long a tick's moves are collected before the missing robots are made to stay")
+
+
+def add_ground_station_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--gcs", default=None, metavar="URL",
+                   help="a second MAVLink link to the vehicle for a ground station, e.g. udpout:127.0.0.1:14550 "
+                        "(QGroundControl's port) or udpin:127.0.0.1:14551")
+    p.add_argument("--mavlink-key", default=None, metavar="FILE",
+                   help="sign the --gcs link with this MAVLink 2 key (32 raw bytes or 64 hex digits); "
+                        "unsigned frames are refused there")
+    p.add_argument("--mavlink-bind", default="127.0.0.1", metavar="HOST",
+                   help="address the vehicle's MAVLink sockets are bound to (default 127.0.0.1: only this "
+                        "machine can reach it; 0.0.0.0 opens it to the network)")
 
 
 def slip_probability(faults: list[str]) -> float:
@@ -553,7 +596,8 @@ def config_from_args(args: argparse.Namespace) -> WorldConfig:
                       home_lon=home[1], home_alt_m=home[2], mavlink=mav, time_scale=args.time_scale,
                       camera={**DRONE_CAMERA, **camera_options(args.camera)}, connect=args.connect, listen=args.listen,
                       zenoh_config=args.zenoh_config, move_batch_timeout_s=args.move_timeout,
-                      slip=slip_probability(args.fault))
+                      slip=slip_probability(args.fault), gcs=args.gcs, mavlink_key=args.mavlink_key,
+                      mavlink_bind=args.mavlink_bind)
     cfg.check()
     return cfg
 

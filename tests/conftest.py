@@ -17,3 +17,13 @@ def zenoh_endpoint() -> str:
 @pytest.fixture
 def udp_port() -> int:
     return _free_port(socket.SOCK_DGRAM)
+
+
+@pytest.fixture
+def vehicle():
+    """The simulated autopilot listening on a free loopback UDP port, 20x faster than real time."""
+    from sim_world.vehicle import Vehicle, VehicleConfig
+
+    v = Vehicle(VehicleConfig(url="udpin:127.0.0.1:0", time_scale=20.0)).start()
+    yield v
+    v.stop()

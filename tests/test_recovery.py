@@ -211,19 +211,28 @@ def _vehicle_port(run: Run) -> int:
 @pytest.mark.parametrize("command, words", [
     ("disarm", "disarmed by someone else"),
     ("land", "LAND mode"),
+    ("rtl on the --gcs link", "RETURN_TO_LAUNCH mode"),
 ])
-def test_a_second_ground_station_takes_the_vehicle(tmp_path, command, words):
+def test_a_second_ground_station_takes_the_vehicle(tmp_path, udp_port, command, words):
     from pymavlink import mavutil
 
-    run = Run(tmp_path / "out", "--robots", "6", "--tick-rate", "4")
+    gcs_port = udp_port if command.endswith("--gcs link") else None  # the operator's own link, like QGroundControl's
+    run = Run(tmp_path / "out", "--robots", "6", "--tick-rate", "4",
+              *(["--gcs", f"udpout:127.0.0.1:{gcs_port}"] if gcs_port else []))
+    if gcs_port:
+        gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{gcs_port}", source_system=250)
+        assert gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=30) is not None  # learns the vehicle
     run.wait_for(r"tick 2/\d+")
-    gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{_vehicle_port(run)}", source_system=250)
+    if not gcs_port:
+        gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{_vehicle_port(run)}", source_system=250)
     try:
         m = gcs.mav
         if command == "disarm":   # forced: a multicopter in the air refuses a plain disarm
             m.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 21196, 0, 0, 0, 0, 0)
-        else:
+        elif command == "land":
             m.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, 0, 0, 0, 0, 0)
+        else:
+            m.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0, 0, 0, 0, 0, 0)
         code, report = run.finish()
     finally:
         gcs.close()

@@ -15,68 +15,9 @@ from protocol.errors import MissionError
 from protocol.geo import cell_to_ned, check_home, geo_to_ned, ned_to_cell, ned_to_geo
 from sim_world.vehicle import LandedState, Mode, Vehicle, VehicleConfig, step_toward, step_yaw
 
+from mavlink_gcs import GCS_SYSID, Client, wait_for
+
 NAN = float("nan")
-GCS_SYSID, GCS_COMPID = 245, 190
-
-
-class Client:
-    """A minimal ground station: pymavlink's MAVLink 2 codec over a plain UDP socket."""
-
-    def __init__(self, port: int, system_id: int = GCS_SYSID):
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.dest = ("127.0.0.1", port)
-        self.mav = mavlink.MAVLink(self, system_id, GCS_COMPID)
-        self.parser = mavlink.MAVLink(None, 0, 0)
-        self.parser.robust_parsing = True
-        self.pending: list = []
-        self.send(self.mav.heartbeat_encode(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0))
-
-    def write(self, buf: bytes) -> None:
-        self.sock.sendto(buf, self.dest)
-
-    def send(self, msg) -> None:
-        self.mav.send(msg)
-
-    def recv(self, kind: str, timeout: float = 3.0, cond=lambda m: True):
-        """The next message of type `kind` satisfying `cond`; fails the test on timeout."""
-        msg = self.poll(kind, timeout, cond)
-        if msg is None:
-            pytest.fail(f"no {kind} within {timeout} s")
-        return msg
-
-    def poll(self, kind: str, timeout: float, cond=lambda m: True):
-        """The next message of type `kind` satisfying `cond`, or None after `timeout` s."""
-        deadline = time.monotonic() + timeout
-        while True:
-            while self.pending:
-                msg = self.pending.pop(0)
-                if msg.get_type() == kind and cond(msg):
-                    return msg
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                return None
-            self.sock.settimeout(remaining)
-            try:
-                data = self.sock.recv(65535)
-            except socket.timeout:
-                continue
-            self.pending.extend(self.parser.parse_buffer(data) or [])
-
-    def command(self, command: int, *params: float, target_component: int = 1) -> int:
-        p = list(params) + [0.0] * (7 - len(params))
-        self.send(self.mav.command_long_encode(1, target_component, command, 0, *p))
-        return self.recv("COMMAND_ACK", cond=lambda m: m.command == command).result
-
-    def close(self) -> None:
-        self.sock.close()
-
-
-@pytest.fixture
-def vehicle():
-    v = Vehicle(VehicleConfig(url="udpin:127.0.0.1:0", time_scale=20.0)).start()
-    yield v
-    v.stop()
 
 
 @pytest.fixture
@@ -85,14 +26,6 @@ def client(vehicle):
     c.recv("HEARTBEAT")  # the vehicle has learned our address
     yield c
     c.close()
-
-
-def wait_for(predicate, timeout: float = 5.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            pytest.fail("condition not met in time")
-        time.sleep(0.01)
 
 
 # --- geo and kinematics (pure) --------------------------------------------------------
@@ -172,7 +105,7 @@ def test_arm_takeoff_reposition_land(vehicle, client):
     client.recv("HEARTBEAT", cond=lambda m: m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
 
     assert client.command(mavlink.MAV_CMD_NAV_TAKEOFF, *[NAN] * 7) == mavlink.MAV_RESULT_ACCEPTED
-    client.recv("GLOBAL_POSITION_INT", cond=lambda m: abs(m.relative_alt - 10_000) < 50)  # MIS_TAKEOFF_ALT
+    client.recv("GLOBAL_POSITION_INT", cond=lambda m: abs(m.relative_alt - 2_500) < 50)  # MIS_TAKEOFF_ALT, PX4's 2.5
     client.recv("EXTENDED_SYS_STATE", cond=lambda m: m.landed_state == mavlink.MAV_LANDED_STATE_IN_AIR)
     assert vehicle.in_air and vehicle.mode == Mode.HOLD
     assert client.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0) == mavlink.MAV_RESULT_DENIED  # in the air
@@ -217,7 +150,7 @@ def test_altitude_is_clamped_to_max():
 def test_parameters_read_set_and_list(client):
     client.send(client.mav.param_request_read_encode(1, 1, b"MIS_TAKEOFF_ALT", -1))
     value = client.recv("PARAM_VALUE", cond=lambda m: m.param_id == "MIS_TAKEOFF_ALT")
-    assert value.param_value == pytest.approx(10.0) and value.param_type == mavlink.MAV_PARAM_TYPE_REAL32
+    assert value.param_value == pytest.approx(2.5) and value.param_type == mavlink.MAV_PARAM_TYPE_REAL32
     client.send(client.mav.param_set_encode(1, 1, b"MIS_TAKEOFF_ALT", 25.0, mavlink.MAV_PARAM_TYPE_REAL32))
     assert client.recv("PARAM_VALUE", cond=lambda m: m.param_id == "MIS_TAKEOFF_ALT").param_value == 25.0
     client.send(client.mav.param_set_encode(1, 1, b"MIS_TAKEOFF_ALT", 5000.0, mavlink.MAV_PARAM_TYPE_REAL32))
@@ -291,7 +224,7 @@ def test_garbage_is_counted_and_the_vehicle_keeps_answering(vehicle, client):
         assert not vehicle.armed  # the corrupted arm command was dropped
         # still answering, and still to the real ground station, not to the sender of garbage
         client.send(client.mav.param_request_read_encode(1, 1, b"MIS_TAKEOFF_ALT", -1))
-        assert client.recv("PARAM_VALUE").param_value == pytest.approx(10.0)
+        assert client.recv("PARAM_VALUE").param_value == pytest.approx(2.5)
         assert client.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mavlink.MAV_RESULT_ACCEPTED
     finally:
         attacker.close()

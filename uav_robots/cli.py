@@ -9,6 +9,7 @@ from protocol.process import command_main
 
 
 def _add_run(sub) -> None:
+    from sim_world.world import add_ground_station_arguments
     from uav_agent.cli import add_planning_arguments
 
     p = sub.add_parser("run", help="run a complete mission: world, UAV and robot processes")
@@ -24,6 +25,7 @@ def _add_run(sub) -> None:
     p.add_argument("--camera", default="",
                    help="camera options for the world, e.g. 'width=1280,height=960,hfov_deg=84,noise_std=6,"
                         "blur_sigma=1,lighting=0.3' (default 4000x3000, 90 deg, clean)")
+    add_ground_station_arguments(p)
     p.add_argument("--robots-per-process", type=int, default=None,
                    help="robots hosted per process (default: 1 up to 64 robots, then 4 pools)")
     p.add_argument("--fault", action="append", default=[], metavar="SPEC",

@@ -98,6 +98,9 @@ class Launcher:
                               "--connectivity", str(a.connectivity),
                               "--mavlink", f"udpout:127.0.0.1:{self.udp}", "--time-scale", str(a.time_scale),
                               *(["--camera", a.camera] if a.camera else []),
+                              *(["--gcs", a.gcs] if a.gcs else []),
+                              *(["--mavlink-key", a.mavlink_key] if a.mavlink_key else []),
+                              "--mavlink-bind", a.mavlink_bind,
                               *[x for f in a.fault if f.startswith("slip:") for x in ("--fault", f)]],
                     to_log=True)
         faults = [parse_fault(f) for f in a.fault if not f.startswith("slip:")]
@@ -163,7 +166,8 @@ def check_arguments(args) -> tuple[str, object]:
     from protocol.messages import MAX_ROBOTS
     from scenarios.maps import place, resolve_map
     from sim_world.camera import CameraModel
-    from sim_world.world import DRONE_CAMERA, MOVE_BATCH_TIMEOUT_S, camera_options, slip_probability
+    from sim_world.world import (DRONE_CAMERA, MOVE_BATCH_TIMEOUT_S, WorldConfig, camera_options, slip_probability,
+                                 vehicle_config)
 
     _number("--robots", args.robots, 1, MAX_ROBOTS)
     _number("--seed", args.seed, 0, 2**32 - 1)
@@ -190,6 +194,8 @@ def check_arguments(args) -> tuple[str, object]:
     except (MissionError, TypeError) as exc:
         raise UavRobotsError(f"--camera {args.camera!r}: {exc}") from None
     slip_probability([f for f in args.fault if f.startswith("slip:")])
+    vehicle_config(WorldConfig(fleet="check", gcs=args.gcs, mavlink_key=args.mavlink_key,
+                               mavlink_bind=args.mavlink_bind))
     for f in map(parse_fault, (f for f in args.fault if not f.startswith("slip:"))):
         if f.robot >= args.robots:
             raise UavRobotsError(f"--fault {f}: there is no robot {f.robot} in a fleet of {args.robots}")
@@ -209,7 +215,8 @@ def run(args) -> int:
     code = 1
     if not (args.quiet or args.json):
         print(f"uav-robots: map {name} ({free.shape[1]}x{free.shape[0]}), {args.robots} robots, "
-              f"fleet {launcher.fleet}, zenoh {launcher.endpoint}, mavlink udp:{launcher.udp}", flush=True)
+              f"fleet {launcher.fleet}, zenoh {launcher.endpoint}, mavlink udp:{launcher.udp}"
+              + (f", ground station {args.gcs}" if args.gcs else ""), flush=True)
     try:
         uav = launcher.start()
         code = launcher.watch(uav, args.timeout)

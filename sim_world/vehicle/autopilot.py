@@ -1,5 +1,11 @@
-"""The autopilot: arming, flight modes and the targets they set; it flies the airframe
-(it is the dynamics' `Pilot`) and decides what a touchdown means."""
+"""The autopilot: arming, flight modes and the targets they set, the failsafes; it flies the
+airframe (it is the dynamics' `Pilot`) and decides what a touchdown means.
+
+Every mode change and every refusal is said as STATUSTEXT (severities as PX4's
+mavlink_log_info / _critical use them). Failsafes, as PX4's commander: a critical battery
+(COM_LOW_BAT_ACT), a geofence breach (GF_ACTION) and a datalink loss (NAV_DLL_ACT after
+COM_DL_LOSS_T, holding COM_FAIL_ACT_T first so that an operator can take over).
+"""
 from __future__ import annotations
 
 import math
@@ -9,15 +15,22 @@ from typing import Callable
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from .battery import Battery, Charge
+from .datalink import Datalink
 from .dynamics import Contact, Dynamics, Setpoint, Vec3
-from .journal import Journal
+from .geofence import Geofence
+from .journal import CRITICAL, INFO, WARNING, Journal
+from .mission import Leg, Mission
 from .modes import LandedState, Mode
 from .offboard import Offboard
 from .params import Params
 
 TAKEOFF_DONE_M = 0.1  # takeoff ends within this distance of the takeoff altitude
 LAND_SLOW_ALT_M = 2.0  # below this altitude a landing descends at the land speed
-MIN_TAKEOFF_ALT_M = 0.5
+RTL_HOME_M = 0.3  # RTL lands once this close to home horizontally
+GF_ACTIONS = {2: Mode.HOLD, 3: Mode.RTL, 4: Mode.LAND, 5: Mode.LAND}  # GF_ACTION; 4 (terminate) lands here
+DLL_ACTIONS = {1: Mode.HOLD, 2: Mode.RTL, 3: Mode.LAND}  # NAV_DLL_ACT
+FLOWN_BACK = (Mode.LAND, Mode.RTL)  # failsafes never turn these into something else
 
 
 class Autopilot:
@@ -25,24 +38,37 @@ class Autopilot:
     a MAV_RESULT; all of them hold the lock so that each is one decision."""
 
     def __init__(self, lock: threading.RLock, journal: Journal, dynamics: Dynamics, params: Params,
-                 offboard: Offboard, cruise_speed_m_s: float):
+                 offboard: Offboard, battery: Battery, datalink: Datalink, mission: Mission, cruise_speed_m_s: float):
         self._lock = lock
         self._journal = journal
         self._dynamics = dynamics
         self._params = params
         self._offboard = offboard
+        self._battery = battery
+        self._datalink = datalink
+        self._mission = mission
+        self._fence = Geofence(params)
         self._armed = False
         self._mode = Mode.HOLD
         self._target: Vec3 = dynamics.position
         self._target_yaw = 0.0
         self._speed_xy = cruise_speed_m_s  # DO_CHANGE_SPEED and DO_REPOSITION set it
         self._touchdown_at: float | None = None  # simulated time the vehicle last touched down
-        # The modes this vehicle flies and how each is entered; the others need an RC or a
-        # mission, which it lacks.
+        self._landing = False  # descending to land (LAND, the end of RTL or of a mission)
+        self._rtl_phase = "climb"
+        self._rtl_alt = 0.0
+        self._breached = False
+        self._link_lost = False
+        self._clamping = False
+        self._pending: tuple[Mode, float, str] | None = None  # a failsafe action due at a wall time
+        # The modes this vehicle flies and how each is entered; the others need an RC, which it lacks.
         self._mode_entries: dict[Mode, Callable[[], int]] = {
             Mode.HOLD: self._enter_hold_mode,
+            Mode.POSCTL: self._enter_position,
             Mode.TAKEOFF: lambda: self.takeoff(None, None),
             Mode.LAND: self.land,
+            Mode.RTL: self.rtl,
+            Mode.MISSION: self._enter_mission,
             Mode.OFFBOARD: self._enter_offboard,
         }
         params.watch("MPC_XY_VEL_MAX", self._cap_cruise_speed)
@@ -67,9 +93,18 @@ class Autopilot:
                 return LandedState.TAKING_OFF
             if not self._dynamics.airborne:
                 return LandedState.ON_GROUND
-            if self._mode == Mode.LAND:
+            if self._landing or self._mode == Mode.LAND:
                 return LandedState.LANDING
             return LandedState.IN_AIR
+
+    @property
+    def fence_enabled(self) -> bool:
+        return self._fence.enabled
+
+    @property
+    def fence_breached(self) -> bool:
+        with self._lock:
+            return self._breached
 
     def status(self) -> tuple[bool, Mode, LandedState]:
         """(armed, mode, landed state) read together: what a heartbeat must announce."""
@@ -85,30 +120,36 @@ class Autopilot:
                 if self._armed:
                     return mavlink.MAV_RESULT_ACCEPTED
                 if airborne and not force:
-                    return mavlink.MAV_RESULT_DENIED
+                    return self._refuse("Arming denied: the vehicle is in the air")
                 self._armed = True
                 self._touchdown_at = None
-                if self._mode == Mode.HOLD:
+                if self._mode in (Mode.HOLD, Mode.POSCTL):
                     self._target = self._dynamics.position
                 self._journal.event("armed")
                 return mavlink.MAV_RESULT_ACCEPTED
             if not self._armed:
                 return mavlink.MAV_RESULT_ACCEPTED
             if airborne and not force:
-                return mavlink.MAV_RESULT_DENIED
+                return self._refuse("Disarming denied: the vehicle is in the air")
             self._disarm("disarmed" + (" in the air (forced)" if airborne else ""))
             return mavlink.MAV_RESULT_ACCEPTED
 
     def takeoff(self, alt_m: float | None, yaw: float | None) -> int:
-        """Climb straight up to `alt_m` above home (None: MIS_TAKEOFF_ALT), then hold."""
+        """Climb straight up to `alt_m` above home (None: MIS_TAKEOFF_ALT, which is also the
+        lowest takeoff PX4 flies), then hold."""
         with self._lock:
             if not self._armed:
-                return mavlink.MAV_RESULT_DENIED
+                return self._refuse("Takeoff denied: disarmed")
+            minimum = self._params.get("MIS_TAKEOFF_ALT")
             if alt_m is None:
-                alt_m = self._params.get("MIS_TAKEOFF_ALT")
-            alt_m = min(max(alt_m, MIN_TAKEOFF_ALT_M), self._dynamics.ceiling)
+                alt_m = minimum
+            elif alt_m < minimum:
+                if alt_m < minimum - 0.1:
+                    self._journal.say(CRITICAL, f"Using minimum takeoff altitude: {minimum:.2f} m")
+                alt_m = minimum
+            alt_m = min(alt_m, self._dynamics.ceiling, self._fence_ceiling())
             north, east, _ = self._dynamics.position
-            self._mode = Mode.TAKEOFF
+            self._switch(Mode.TAKEOFF)
             self._target = (north, east, -alt_m)
             if yaw is not None:
                 self._target_yaw = yaw
@@ -117,17 +158,26 @@ class Autopilot:
 
     def land(self) -> int:
         with self._lock:
-            if self._mode != Mode.LAND:
-                self._mode = Mode.LAND
-                self._journal.event("landing")
+            self._switch(Mode.LAND)
             north, east, _ = self._dynamics.position
             self._target = (north, east, 0.0)
+            return mavlink.MAV_RESULT_ACCEPTED
+
+    def rtl(self, why: str | None = None) -> int:
+        """Return to launch: climb to RTL_RETURN_ALT (or stay higher), fly home, land, disarm."""
+        with self._lock:
+            if not (self._armed and self._dynamics.airborne):
+                return self._refuse("Return denied: not flying")
+            ceiling = min(self._dynamics.ceiling, self._fence_ceiling())
+            self._rtl_alt = min(max(self._dynamics.altitude, self._params.get("RTL_RETURN_ALT")), ceiling)
+            self._rtl_phase = "climb"
+            self._switch(Mode.RTL, why)
             return mavlink.MAV_RESULT_ACCEPTED
 
     def loiter(self) -> int:
         with self._lock:
             if not self._armed:
-                return mavlink.MAV_RESULT_DENIED
+                return self._refuse("Hold denied: disarmed")
             self._enter_hold()
             return mavlink.MAV_RESULT_ACCEPTED
 
@@ -136,14 +186,15 @@ class Autopilot:
         """Fly to a point and hold there; None keeps the current coordinate, yaw or speed."""
         with self._lock:
             if not self._armed:
-                return mavlink.MAV_RESULT_DENIED
+                return self._refuse("Reposition denied: disarmed")
             here_n, here_e, here_d = self._dynamics.position
             north = here_n if north is None else north
             east = here_e if east is None else east
             down = self._dynamics.clamp_down(here_d if down is None else down)
-            if self._mode != Mode.HOLD:
-                self._journal.event(f"mode {self._mode.name} -> HOLD (reposition)")
-            self._mode = Mode.HOLD
+            outside = self._fence.violation((north, east, down))
+            if outside is not None:
+                return self._refuse(f"Reposition denied: target outside the geofence ({outside})")
+            self._switch(Mode.HOLD, "reposition")
             self._target = (north, east, down)
             if yaw is not None:
                 self._target_yaw = yaw
@@ -156,12 +207,17 @@ class Autopilot:
         mode = Mode.from_custom_mode(main, sub)
         enter = self._mode_entries.get(mode)
         if enter is None:
-            self._journal.warn(f"refused mode main={main} sub={sub} ({mode.name if mode else 'unknown'})")
-            return mavlink.MAV_RESULT_DENIED
+            return self._refuse(f"Mode {mode.name if mode else f'{main}.{sub}'} not available on this vehicle")
         with self._lock:
+            self._pending = None  # an operator's choice ends a failsafe's countdown
             if mode == self._mode:
                 return mavlink.MAV_RESULT_ACCEPTED
             return enter()
+
+    def start_mission(self) -> int:
+        """MAV_CMD_MISSION_START: AUTO.MISSION from the current item."""
+        with self._lock:
+            return self._enter_mission()
 
     def change_speed(self, kind: int, speed: float) -> int:
         """DO_CHANGE_SPEED: kind 0 or 1 the cruise speed, 2 the climb, 3 the descent limit."""
@@ -174,43 +230,102 @@ class Autopilot:
                 # capped from above only: a commanded crawl below the parameter's minimum is kept
                 self._params.set("MPC_Z_VEL_MAX_UP" if kind == 2 else "MPC_Z_VEL_MAX_DN", speed, clamp_low=False)
             else:
-                return mavlink.MAV_RESULT_DENIED
+                return self._refuse(f"Speed change denied: unknown speed type {kind}")
         return mavlink.MAV_RESULT_ACCEPTED
 
     # --- flying (the dynamics' Pilot; called under the lock) --------------------------------
 
     def setpoint(self, dt: float, wall_now: float) -> Setpoint | None:
+        airborne = self._dynamics.airborne
+        charge = self._battery.drain(dt, self._armed, airborne, self._dynamics.state().vel)
         if not self._armed:
             return None
+        if airborne:
+            self._failsafes(charge, wall_now)
         up, down = self._params.get("MPC_Z_VEL_MAX_UP"), self._params.get("MPC_Z_VEL_MAX_DN")
         speed = min(self._speed_xy, self._params.get("MPC_XY_VEL_MAX"))
+        here = self._dynamics.position
+        self._landing = False
         if self._mode == Mode.OFFBOARD:
-            if self._offboard.lost(wall_now):
-                self._journal.event("offboard setpoints lost")
-                self._enter_hold()
-            else:
-                target = self._offboard.target(self._dynamics.position, dt, speed, up, down)
-                if target is not None:
-                    self._target = target
-            yaw = self._offboard.yaw
-            if yaw is not None:
-                self._target_yaw = yaw
-        if self._mode == Mode.LAND:
-            north, east, _ = self._dynamics.position
-            self._target = (north, east, 0.0)
+            self._offboard_target(wall_now, dt, speed, up, down)
+        elif self._mode == Mode.MISSION:
+            speed = self._mission_target(here, airborne, speed)
+        if self._mode == Mode.RTL:
+            speed = self._rtl_target(here, speed)
+        if self._mode == Mode.LAND or self._landing:
+            self._landing = True
+            self._target = (here[0], here[1], 0.0) if self._mode == Mode.LAND else self._target
             if self._dynamics.altitude <= LAND_SLOW_ALT_M:
                 down = min(down, self._params.get("MPC_LAND_SPEED"))
-            speed = 0.0
+            speed = 0.0 if self._mode == Mode.LAND else speed
         if self._mode == Mode.TAKEOFF:
             speed = 0.0  # a vertical climb, like PX4's takeoff
         target = (self._target[0], self._target[1], self._dynamics.clamp_down(self._target[2]))
         return Setpoint(target, self._target_yaw, speed, up, down)
+
+    def _offboard_target(self, wall_now: float, dt: float, speed: float, up: float, down: float) -> None:
+        if self._offboard.lost(wall_now):
+            self._journal.event("offboard setpoints lost")
+            self._enter_hold("offboard setpoints lost")
+        else:
+            target = self._offboard.target(self._dynamics.position, dt, speed, up, down)
+            if target is not None:
+                self._target = self._fenced(target)
+        yaw = self._offboard.yaw
+        if yaw is not None:
+            self._target_yaw = yaw
+
+    def _fenced(self, target: Vec3) -> Vec3:
+        """An offboard target pulled back onto the geofence, said once per stretch of clamping."""
+        outside = self._fence.violation(target)
+        if outside is None:
+            self._clamping = False
+            return target
+        if not self._clamping:
+            self._journal.say(WARNING, f"Offboard target outside the geofence ({outside}): held at the fence")
+            self._clamping = True
+        return self._fence.clamp(target)
+
+    def _mission_target(self, here: Vec3, airborne: bool, speed: float) -> float:
+        step = self._mission.steer(here, airborne, self._dynamics.sim_time)
+        if step is None:
+            if not airborne:
+                self._disarm_soon()
+            return speed
+        if step.leg is Leg.RETURN:
+            self.rtl("mission")
+            return speed
+        self._target = step.target
+        if step.leg is Leg.LAND:
+            self._landing = True
+            return 0.0
+        return 0.0 if step.leg is Leg.CLIMB else speed
+
+    def _rtl_target(self, here: Vec3, speed: float) -> float:
+        n, e, _ = here
+        if self._rtl_phase == "climb":
+            self._target = (n, e, -self._rtl_alt)
+            if self._dynamics.altitude >= self._rtl_alt - TAKEOFF_DONE_M:
+                self._rtl_phase = "return"
+            else:
+                return 0.0
+        if self._rtl_phase == "return":
+            self._target = (0.0, 0.0, -self._rtl_alt)
+            if math.hypot(n, e) <= RTL_HOME_M:
+                self._rtl_phase = "land"
+                self._journal.event("RTL: landing at home")
+            return speed
+        self._target = (0.0, 0.0, 0.0)
+        self._landing = True
+        return speed
 
     def on_moved(self, setpoint: Setpoint) -> None:
         alt = self._dynamics.altitude
         if self._mode == Mode.TAKEOFF and abs(alt + setpoint.target[2]) <= TAKEOFF_DONE_M:
             self._journal.event(f"takeoff complete at {alt:.1f} m")
             self._enter_hold()
+            # hold at the takeoff altitude, not where the climb was called done (once 0.42 m for 0.5 m)
+            self._target = (*self._target[:2], setpoint.target[2])
 
     def on_contact(self, contact: Contact | None) -> None:
         """Like PX4's commander: auto-disarm COM_DISARM_LAND simulated seconds after touchdown."""
@@ -226,32 +341,122 @@ class Autopilot:
                 and now - self._touchdown_at >= self._params.get("COM_DISARM_LAND")):
             self._disarm("disarmed after landing")
 
+    # --- failsafes (the caller holds the lock; the vehicle is armed and in the air) ----------
+
+    def _failsafes(self, charge: Charge | None, wall_now: float) -> None:
+        act = int(self._params.get("COM_LOW_BAT_ACT"))
+        if charge is Charge.CRITICAL and act in (2, 3):
+            self._failsafe(Mode.RTL if act == 3 else Mode.LAND, "critical battery")
+        elif charge is Charge.EMERGENCY and act in (2, 3):
+            self._failsafe(Mode.LAND, "emergency battery")
+        outside = self._fence.violation(self._dynamics.position)
+        if outside is not None and not self._breached:
+            self._journal.say(CRITICAL, f"Geofence violated: {outside}")
+            action = GF_ACTIONS.get(int(self._params.get("GF_ACTION")))
+            if action is not None:
+                self._failsafe(action, "geofence")
+        self._breached = outside is not None
+        self._check_datalink(wall_now)
+        if self._pending is not None and wall_now >= self._pending[1]:
+            mode, _, why = self._pending
+            self._pending = None
+            self._failsafe(mode, why)
+
+    def _check_datalink(self, wall_now: float) -> None:
+        action = DLL_ACTIONS.get(int(self._params.get("NAV_DLL_ACT")))
+        lost = self._datalink.silent_for(wall_now) > self._params.get("COM_DL_LOSS_T")
+        if lost and not self._link_lost and action is not None:
+            if self._mode in FLOWN_BACK:
+                self._journal.say(CRITICAL, "Data link lost")
+            else:
+                delay = self._params.get("COM_FAIL_ACT_T")
+                self._journal.say(CRITICAL, "Data link lost: holding" + (
+                    f", {action.name} in {delay:g} s" if action is not Mode.HOLD else ""))
+                self._enter_hold("data link lost")
+                if action is not Mode.HOLD:
+                    self._pending = (action, wall_now + delay, "data link lost")
+        elif not lost and self._link_lost:
+            self._journal.say(INFO, "Data link regained")
+            if self._pending is not None and self._pending[2] == "data link lost":
+                self._pending = None
+        self._link_lost = lost and action is not None
+
+    def _failsafe(self, mode: Mode, why: str) -> None:
+        """Fly `mode` because of `why`; a landing or return already under way is kept (a land
+        is never turned back into a return)."""
+        if self._mode == mode or self._mode == Mode.LAND or (self._mode == Mode.RTL and mode != Mode.LAND):
+            return
+        self._journal.say(CRITICAL, f"Failsafe: {why}, {mode.name}")
+        if mode == Mode.RTL and self.rtl(why) == mavlink.MAV_RESULT_ACCEPTED:
+            return
+        if mode == Mode.HOLD:
+            self._enter_hold(why)
+        else:
+            self.land()
+
     # --- transitions (the caller holds the lock) ----------------------------------------------
+
+    def _switch(self, mode: Mode, why: str | None = None) -> None:
+        """Enter `mode`, telling the ground stations (PX4 says mode changes at INFO)."""
+        if mode == self._mode:
+            return
+        self._journal.say(INFO, f"Mode {self._mode.name} -> {mode.name}" + (f" ({why})" if why else ""))
+        self._mode = mode
+
+    def _refuse(self, why: str) -> int:
+        self._journal.say(CRITICAL, why)
+        return mavlink.MAV_RESULT_DENIED
 
     def _disarm(self, why: str) -> None:
         self._armed = False
         self._touchdown_at = None
-        if self._mode in (Mode.LAND, Mode.TAKEOFF):
-            self._mode = Mode.HOLD  # so that the next arm + takeoff starts clean
+        self._pending = None
+        if self._mode in (Mode.LAND, Mode.TAKEOFF, Mode.RTL, Mode.MISSION):
+            self._switch(Mode.HOLD, why)  # so that the next arm + takeoff starts clean
         self._journal.event(why)
 
-    def _enter_hold(self) -> None:
+    def _disarm_soon(self) -> None:
+        """A finished mission on the ground disarms like a landing."""
+        if self._touchdown_at is None:
+            self._touchdown_at = self._dynamics.sim_time
+
+    def _enter_hold(self, why: str | None = None) -> None:
         """Switch to HOLD, braking at the current position."""
-        if self._mode != Mode.HOLD:
-            self._journal.event(f"mode {self._mode.name} -> HOLD")
-        self._mode = Mode.HOLD
+        self._switch(Mode.HOLD, why)
         self._target = self._dynamics.position
 
     def _enter_hold_mode(self) -> int:
         self._enter_hold()
         return mavlink.MAV_RESULT_ACCEPTED
 
+    def _enter_position(self) -> int:
+        """POSCTL without sticks: centred sticks hold the position, which is all this vehicle can do."""
+        self._switch(Mode.POSCTL)
+        self._target = self._dynamics.position
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _enter_mission(self) -> int:
+        items = self._mission.items
+        if not items:
+            return self._refuse("Mission denied: no mission uploaded")
+        here = self._dynamics.position
+        outside = next((v for v in map(self._fence.violation, self._mission.points(here)) if v), None)
+        if outside is not None:
+            return self._refuse(f"Mission denied: an item is outside the geofence ({outside})")
+        if self._mission.finished:
+            self._mission.set_current(0)
+        self._switch(Mode.MISSION)
+        return mavlink.MAV_RESULT_ACCEPTED
+
     def _enter_offboard(self) -> int:
         if not self._offboard.streaming(time.monotonic()):
-            return mavlink.MAV_RESULT_DENIED  # PX4 only switches once setpoints are streaming
-        self._mode = Mode.OFFBOARD
-        self._journal.event("mode OFFBOARD")
+            return self._refuse("Offboard denied: no setpoint stream")  # PX4 switches only once setpoints stream
+        self._switch(Mode.OFFBOARD)
         return mavlink.MAV_RESULT_ACCEPTED
+
+    def _fence_ceiling(self) -> float:
+        ver = self._params.get("GF_MAX_VER_DIST")
+        return ver if ver > 0 else math.inf
 
     def _cap_cruise_speed(self, max_speed: float) -> None:
         self._speed_xy = min(self._speed_xy, max_speed)

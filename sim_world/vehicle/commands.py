@@ -17,7 +17,11 @@ from protocol.geo import geo_to_ned
 
 from .autopilot import Autopilot
 from .config import VehicleConfig
+from .datalink import Datalink
+from .journal import CRITICAL, INFO, Journal
 from .link import COMPONENT_ID, Link
+from .mission import Mission
+from .mission_protocol import MissionService
 from .offboard import Offboard
 from .params import Params
 from .telemetry import Telemetry
@@ -27,6 +31,11 @@ INT32_MAX = 2**31 - 1
 GLOBAL_FRAMES = (mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_INT, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
                  mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
 RELATIVE_FRAMES = (mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
+
+COMMAND_NAMES = {v: k[len("MAV_CMD_"):] for k, v in vars(mavlink).items() if k.startswith("MAV_CMD_")
+                 and isinstance(v, int)}
+RESULT_NAMES = {v: k[len("MAV_RESULT_"):] for k, v in vars(mavlink).items() if k.startswith("MAV_RESULT_")
+                and isinstance(v, int)}
 
 Params7 = tuple[float, float, float, float, float, float, float]
 # (MAV_RESULT, a message to send after the COMMAND_ACK or None)
@@ -44,28 +53,38 @@ def _given(value: float) -> float | None:
 class Commands:
     """Routes each incoming message to its handler."""
 
-    def __init__(self, config: VehicleConfig, link: Link, autopilot: Autopilot, telemetry: Telemetry,
-                 params: Params, offboard: Offboard):
+    def __init__(self, config: VehicleConfig, link: Link, journal: Journal, autopilot: Autopilot,
+                 telemetry: Telemetry, params: Params, offboard: Offboard, datalink: Datalink, mission: Mission,
+                 mission_service: MissionService):
         self._config = config
         self._link = link
+        self._journal = journal
         self._autopilot = autopilot
         self._telemetry = telemetry
+        self._mission = mission
         m = mavlink
         self._commands: dict[int, CommandHandler] = {
             m.MAV_CMD_COMPONENT_ARM_DISARM: self._arm_disarm,
             m.MAV_CMD_NAV_TAKEOFF: self._takeoff,
             m.MAV_CMD_NAV_LAND: lambda p, frame: (autopilot.land(), None),
+            m.MAV_CMD_NAV_RETURN_TO_LAUNCH: lambda p, frame: (autopilot.rtl(), None),
+            m.MAV_CMD_MISSION_START: lambda p, frame: (autopilot.start_mission(), None),
+            m.MAV_CMD_DO_SET_MISSION_CURRENT: self._set_mission_current,
             m.MAV_CMD_DO_REPOSITION: self._reposition,
             m.MAV_CMD_DO_SET_MODE: self._do_set_mode,
             m.MAV_CMD_NAV_LOITER_UNLIM: lambda p, frame: (autopilot.loiter(), None),
             m.MAV_CMD_DO_CHANGE_SPEED: lambda p, frame: (autopilot.change_speed(int(p[0]), p[1]), None),
             m.MAV_CMD_REQUEST_MESSAGE: self._request_message,
+            m.MAV_CMD_GET_HOME_POSITION:  # deprecated for REQUEST_MESSAGE, still sent by MAVProxy
+                lambda p, frame: (m.MAV_RESULT_ACCEPTED, telemetry.message(m.MAVLINK_MSG_ID_HOME_POSITION)),
             m.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
                 lambda p, frame: (m.MAV_RESULT_ACCEPTED, telemetry.message(m.MAVLINK_MSG_ID_AUTOPILOT_VERSION)),
             m.MAV_CMD_SET_MESSAGE_INTERVAL: lambda p, frame: (telemetry.set_interval(p[0], p[1]), None),
         }
-        # HEARTBEAT and everything else from a ground station needs no answer.
+        # Everything else from a ground station needs no answer.
         self._messages: dict[str, Callable[[object], None]] = {
+            "HEARTBEAT": datalink.on_heartbeat,
+            **{name: self._to_component(h) for name, h in mission_service.handlers.items()},
             "COMMAND_LONG": self._to_component(self._command_long),
             "COMMAND_INT": self._to_component(self._command_int),
             "PARAM_REQUEST_READ": self._to_component(params.on_request_read),
@@ -112,15 +131,20 @@ class Commands:
     def _command(self, msg, params: Params7, frame: int | None) -> None:
         command = msg.command
         handler = self._commands.get(command)
+        said = len(self._journal.said)
         try:
             result, follow_up = handler(params, frame) if handler else (mavlink.MAV_RESULT_UNSUPPORTED, None)
         except (ValueError, OverflowError, TypeError) as exc:  # e.g. NaN where an integer belongs
             self._link.bad(f"command {command} with unusable parameters: {exc}")
             result, follow_up = mavlink.MAV_RESULT_FAILED, None
-        self._link.send(self._link.encoder.command_ack_encode(command, result, 0, 0, msg.get_srcSystem(),
-                                                              msg.get_srcComponent()))
+        if result != mavlink.MAV_RESULT_ACCEPTED and len(self._journal.said) == said:
+            # every refusal is said, with its reason where the handler gave one
+            self._journal.say(CRITICAL, f"Command {COMMAND_NAMES.get(command, command)} refused: "
+                                        f"{RESULT_NAMES.get(result, result)}")
+        self._link.reply(self._link.encoder.command_ack_encode(command, result, 0, 0, msg.get_srcSystem(),
+                                                               msg.get_srcComponent()))
         if follow_up is not None:
-            self._link.send(follow_up)
+            self._link.reply(follow_up)
 
     def _set_mode(self, msg) -> None:
         if msg.base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
@@ -128,11 +152,11 @@ class Commands:
 
     def _timesync(self, msg) -> None:
         if msg.tc1 == 0:  # a request; answering lets a client estimate our clock offset
-            self._link.send(self._link.encoder.timesync_encode(time.monotonic_ns(), msg.ts1))
+            self._link.reply(self._link.encoder.timesync_encode(time.monotonic_ns(), msg.ts1))
 
     def _ping(self, msg) -> None:
         if msg.target_system == 0 and msg.target_component == 0:  # a request, not someone's reply
-            self._link.send(self._link.encoder.ping_encode(msg.time_usec, msg.seq, msg.get_srcSystem(),
+            self._link.reply(self._link.encoder.ping_encode(msg.time_usec, msg.seq, msg.get_srcSystem(),
                                                            msg.get_srcComponent()))
 
     # --- commands ------------------------------------------------------------------------
@@ -144,9 +168,26 @@ class Commands:
         return self._autopilot.arm(p[0] == 1.0, force), None
 
     def _takeoff(self, p: Params7, frame: int | None) -> Reply:
-        alt_amsl = _given(p[6])  # PX4 reads param7 as AMSL
-        alt = alt_amsl - self._config.home_alt_m if alt_amsl is not None else None
-        return self._autopilot.takeoff(alt, _given(p[3])), None
+        return self._autopilot.takeoff(self._takeoff_altitude(_given(p[6])), _given(p[3])), None
+
+    def _takeoff_altitude(self, param7: float | None) -> float | None:
+        """PX4 reads param7 as AMSL. MAVProxy's `takeoff 10` (ArduPilot's convention) sends 10 m
+        above home, which as AMSL lies far below home: PX4 would then climb only to
+        MIS_TAKEOFF_ALT. A value below home cannot be meant as AMSL, so it is taken as relative."""
+        if param7 is None:
+            return None
+        home = self._config.home_alt_m
+        if param7 >= home:
+            return param7 - home
+        self._journal.say(INFO, f"Takeoff altitude {param7:g} m is below home ({home:g} m AMSL): "
+                                f"taken as {param7:g} m above home")
+        return param7
+
+    def _set_mission_current(self, p: Params7, frame: int | None) -> Reply:
+        if not (math.isfinite(p[0]) and self._mission.set_current(int(p[0]))):
+            self._journal.say(CRITICAL, f"Mission item {p[0]:g} does not exist: current item unchanged")
+            return mavlink.MAV_RESULT_DENIED, None
+        return mavlink.MAV_RESULT_ACCEPTED, None
 
     def _do_set_mode(self, p: Params7, frame: int | None) -> Reply:
         if not int(p[0]) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:

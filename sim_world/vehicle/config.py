@@ -1,6 +1,7 @@
 """How a simulated vehicle is reached and how it flies."""
 from __future__ import annotations
 
+import ipaddress
 import math
 from dataclasses import dataclass
 
@@ -16,6 +17,10 @@ class VehicleConfig:
     station listening there (like PX4 SITL's offboard link on 14540),
     `udpin:host:port` listens and answers whoever sends valid MAVLink to it
     (port 0 picks a free port; see `Vehicle.local_address`).
+
+    `gcs_url` opens a second link for a ground station (QGroundControl, MAVProxy), signed
+    with MAVLink 2 `signing_key` (32 bytes) if given: unsigned frames are refused there.
+    Every socket is bound to `bind_host`, loopback unless the operator opens it on purpose.
     """
 
     url: str = "udpout:127.0.0.1:14540"
@@ -26,10 +31,13 @@ class VehicleConfig:
     max_speed_m_s: float = 12.0
     max_climb_m_s: float = 3.0
     time_scale: float = 1.0
-    takeoff_alt_m: float = 10.0  # MIS_TAKEOFF_ALT
+    takeoff_alt_m: float = 2.5  # MIS_TAKEOFF_ALT: PX4's default, the lowest takeoff altitude
     max_alt_m: float = 120.0
     land_speed_m_s: float = 0.7  # MPC_LAND_SPEED, used for the last metres of a landing
     disarm_after_land_s: float = 2.0  # COM_DISARM_LAND, simulated seconds
+    gcs_url: str | None = None
+    signing_key: bytes | None = None
+    bind_host: str = "127.0.0.1"
 
     def __post_init__(self) -> None:
         check_home(self.home_lat, self.home_lon)
@@ -45,3 +53,49 @@ class VehicleConfig:
             raise MissionError("vehicle home_alt_m and disarm_after_land_s must be finite (the latter >= 0)")
         if self.takeoff_alt_m > self.max_alt_m:
             raise MissionError(f"vehicle takeoff_alt_m {self.takeoff_alt_m} is above max_alt_m {self.max_alt_m}")
+        if self.signing_key is not None and (self.gcs_url is None or len(self.signing_key) != 32):
+            raise MissionError("a MAVLink signing key must be 32 bytes and needs a ground-station link (gcs_url)")
+        for url in filter(None, (self.url, self.gcs_url)):
+            check_exposure(url, self.bind_host)
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def check_exposure(url: str, bind_host: str) -> None:
+    """Refuse a link that would take commands from other hosts (or reach them) while the
+    vehicle is bound to loopback: opening it must be said with `bind_host`."""
+    kind, _, rest = url.partition(":")
+    host = rest.rpartition(":")[0]
+    if kind not in ("udpin", "udp", "udpout", "tcpin", "tcp") or not host:
+        return  # pymavlink names the problem when the link is opened
+    if _is_loopback(bind_host) and not _is_loopback(host):
+        listening = kind in ("udpin", "udp", "tcpin")
+        what = "would accept commands from any host that reaches it" if listening else "is not on this machine"
+        raise MissionError(f"MAVLink link {url!r} {what}, but the vehicle is bound to loopback "
+                           f"({bind_host}); open it deliberately with --mavlink-bind {host if listening else '0.0.0.0'}")
+
+
+def read_signing_key(path: str) -> bytes:
+    """A MAVLink 2 signing key from `path`: 32 raw bytes, or 64 hex digits (as `openssl rand -hex 32` writes)."""
+    try:
+        with open(path, "rb") as f:
+            data = f.read(4096)
+    except OSError as exc:
+        raise MissionError(f"--mavlink-key {path}: {exc.strerror or exc}") from None
+    if len(data) == 32:
+        return data
+    try:
+        key = bytes.fromhex(data.decode("ascii").strip())
+    except (UnicodeDecodeError, ValueError):
+        key = b""
+    if len(key) != 32:
+        raise MissionError(f"--mavlink-key {path}: not a 32-byte key (32 raw bytes or 64 hex digits), "
+                           f"got {len(data)} bytes")
+    return key

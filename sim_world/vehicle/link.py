@@ -1,9 +1,16 @@
-"""The vehicle's MAVLink link: the connection, framing of what arrives, and sending."""
+"""The vehicle's MAVLink links: the flight link and an optional ground-station link, framing of
+what arrives, signing, and sending.
+
+Every socket is bound to `config.bind_host` (loopback unless the operator opens it on
+purpose): a `udpout` socket left unbound would take 0.0.0.0 at its first send and accept
+commands from any host that finds its port.
+"""
 from __future__ import annotations
 
 import select
 import threading
 import time
+from dataclasses import dataclass, field
 from typing import Callable
 
 from pymavlink import mavutil
@@ -15,42 +22,88 @@ from .config import VehicleConfig
 from .journal import Journal
 
 COMPONENT_ID = mavlink.MAV_COMP_ID_AUTOPILOT1
+SIGNING_EPOCH = 1420070400  # MAVLink 2 signing timestamps count 10 us units from 2015-01-01
+
+
+def signing_timestamp() -> int:
+    """Now, as a MAVLink 2 signing timestamp."""
+    return int((max(time.time(), SIGNING_EPOCH) - SIGNING_EPOCH) * 100_000)
+
+
+@dataclass
+class Channel:
+    """One pymavlink connection with its own framing (sequence numbers, signing) and parser."""
+
+    name: str
+    url: str
+    key: bytes | None
+    conn: object = None
+    packer: object = None
+    parser: object = None
+    refused_unsigned: int = 0
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def write(self, buf: bytes) -> None:
+        """Where `packer` puts finished frames (pymavlink wants a file)."""
+        conn = self.conn
+        if conn is not None:
+            conn.write(buf)
 
 
 class Link:
-    """One pymavlink connection. `encoder` builds messages, `send` frames and writes them;
-    `run` receives until stopped and hands each valid message to a handler."""
+    """The vehicle's connections. `encoder` builds messages; `send` frames them for every
+    channel (telemetry, STATUSTEXT), `reply` only for the channel whose message is being
+    handled; `run` receives until stopped and hands each valid message to a handler."""
 
     def __init__(self, config: VehicleConfig, lock: threading.RLock, journal: Journal):
         self._config = config
         self._lock = lock
         self._journal = journal
-        self._send_lock = threading.Lock()
-        self._conn = None
-        self.encoder = mavlink.MAVLink(self, config.system_id, COMPONENT_ID)
-        self._parser = mavlink.MAVLink(None, 0, 0)
-        self._parser.robust_parsing = True
+        self.encoder = mavlink.MAVLink(None, config.system_id, COMPONENT_ID)  # a message factory only
+        self.channels = [Channel("vehicle", config.url, None)]
+        if config.gcs_url:
+            self.channels.append(Channel("gcs", config.gcs_url, config.signing_key))
+        self._handling = threading.local()
         self._bad_frames = 0
 
     def open(self) -> None:
-        url = self._config.url
         try:
-            self._conn = mavutil.mavlink_connection(url, source_system=self._config.system_id,
-                                                    source_component=COMPONENT_ID)
+            for ch in self.channels:
+                self._open(ch)
+        except MissionError:
+            self.close()
+            raise
+
+    def _open(self, ch: Channel) -> None:
+        cfg = self._config
+        try:
+            ch.conn = mavutil.mavlink_connection(ch.url, source_system=cfg.system_id, source_component=COMPONENT_ID)
+            if isinstance(ch.conn, mavutil.mavudp) and not ch.conn.udp_server:
+                ch.conn.port.bind((cfg.bind_host, 0))
         except Exception as exc:  # pymavlink raises anything from ValueError to OSError here
-            raise MissionError(f"cannot open the vehicle's MAVLink link {url!r}: {exc}") from None
+            raise MissionError(f"cannot open the vehicle's MAVLink link {ch.url!r}: {exc}") from None
+        ch.packer = mavlink.MAVLink(ch, cfg.system_id, COMPONENT_ID)
+        ch.parser = mavlink.MAVLink(None, 0, 0)
+        ch.parser.robust_parsing = True
+        if ch.key is not None:
+            for mav in (ch.packer, ch.parser):
+                mav.signing.secret_key = ch.key
+                mav.signing.timestamp = signing_timestamp()
+            ch.packer.signing.sign_outgoing = True
+            ch.parser.signing.allow_unsigned_callback = lambda mav, msg_id, ch=ch: self._refuse_unsigned(ch, msg_id)
 
     def close(self) -> None:
-        if self._conn is not None:
-            try:
-                self._conn.close()
-            except OSError:
-                pass
-            self._conn = None
+        for ch in self.channels:
+            if ch.conn is not None:
+                try:
+                    ch.conn.close()
+                except OSError:
+                    pass
+                ch.conn = None
 
-    @property
-    def local_address(self) -> tuple[str, int] | None:
-        conn = self._conn
+    def address(self, name: str = "vehicle") -> tuple[str, int] | None:
+        """The (host, port) channel `name`'s UDP socket is bound to, once open."""
+        conn = next((ch.conn for ch in self.channels if ch.name == name), None)
         if conn is None or not isinstance(conn, mavutil.mavudp):
             return None
         try:
@@ -59,9 +112,19 @@ class Link:
             return None
 
     @property
+    def local_address(self) -> tuple[str, int] | None:
+        return self.address("vehicle")
+
+    @property
     def bad_frames(self) -> int:
         with self._lock:
             return self._bad_frames
+
+    @property
+    def refused_unsigned(self) -> int:
+        """Frames refused on a signed channel because they were unsigned or wrongly signed."""
+        with self._lock:
+            return sum(ch.refused_unsigned for ch in self.channels)
 
     def bad(self, text: str) -> None:
         """Count a frame that was not valid MAVLink, or that broke a handler, and say why."""
@@ -69,66 +132,100 @@ class Link:
             self._bad_frames += 1
         self._journal.warn(text)
 
-    def send(self, msg) -> None:
-        with self._send_lock:
-            if self._conn is not None:
-                self.encoder.send(msg)
+    def _refuse_unsigned(self, ch: Channel, msg_id: int) -> bool:
+        with self._lock:
+            ch.refused_unsigned += 1
+        self._journal.warn(f"{ch.name} link: refused an unsigned or wrongly signed frame (message id {msg_id})")
+        return False
 
-    def write(self, buf: bytes) -> None:
-        """Where `encoder` puts finished frames (pymavlink wants a file); callers use `send`."""
-        conn = self._conn
-        if conn is not None:
-            conn.write(buf)
+    # --- send --------------------------------------------------------------------------
+
+    def send(self, msg, channel: Channel | None = None) -> None:
+        """Frame and send `msg` on `channel`, or on every channel."""
+        for ch in (channel,) if channel is not None else self.channels:
+            with ch.lock:
+                if ch.conn is not None:
+                    ch.packer.send(msg)
+
+    def reply(self, msg) -> None:
+        """Send `msg` on the channel whose message is being handled (all of them outside a handler)."""
+        self.send(msg, self.current)
+
+    @property
+    def current(self) -> Channel | None:
+        """The channel whose message this thread is handling, None outside a handler."""
+        return getattr(self._handling, "channel", None)
+
+    def say(self, severity: int, text: str) -> None:
+        """STATUSTEXT on every channel; texts longer than the field go in numbered chunks."""
+        data = text.encode("utf-8", "replace")
+        chunks = [data[i:i + 50] for i in range(0, len(data), 50)] or [b""]
+        ident = (hash(text) & 0xFFFF or 1) if len(chunks) > 1 else 0
+        for seq, chunk in enumerate(chunks):
+            self.send(self.encoder.statustext_encode(severity, chunk, ident, seq))
 
     # --- receive -----------------------------------------------------------------------
 
     def run(self, stop: threading.Event, handle: Callable[[object], None], greeting: Callable[[], object]) -> None:
         """Receive until `stop`; `handle` gets each valid message, a new peer gets `greeting()`."""
-        conn = self._conn
-        is_udp = isinstance(conn, mavutil.mavudp)
+        by_fd = {ch.conn.fd: ch for ch in self.channels if ch.conn is not None}
         while not stop.is_set():
             try:
-                readable, _, _ = select.select([conn.fd], [], [], 0.1)
+                readable, _, _ = select.select(list(by_fd), [], [], 0.1)
             except (OSError, ValueError):
                 return  # closed under us
-            if not readable:
-                continue
-            try:
-                if is_udp:
-                    data, addr = conn.port.recvfrom(65535)
-                else:
-                    data, addr = conn.recv(4096), None
-            except (BlockingIOError, ConnectionRefusedError, InterruptedError):
-                continue  # ICMP port unreachable from a udpout peer that is not up yet
-            except OSError:
-                if stop.is_set():
+            for fd in readable:
+                if not self._receive(by_fd[fd], handle, greeting) and stop.is_set():
                     return
-                continue
-            if not data:
-                continue
-            if isinstance(data, str):
-                data = data.encode("latin-1")
-            if self._deliver(data, is_udp, handle) and is_udp and conn.udp_server and addr is not None:
-                self._learn_peer(conn, addr, greeting)
 
-    def _deliver(self, data: bytes, is_udp: bool, handle: Callable[[object], None]) -> bool:
-        """Parse one read's bytes and hand on its messages; whether any was valid MAVLink."""
+    def _receive(self, ch: Channel, handle: Callable[[object], None], greeting: Callable[[], object]) -> bool:
+        """Read one datagram (or stream chunk) of `ch`; False if its socket failed."""
+        conn = ch.conn
+        if conn is None:
+            return False
+        is_udp = isinstance(conn, mavutil.mavudp)
         try:
-            msgs = self._parser.parse_buffer(data) or []
+            if is_udp:
+                data, addr = conn.port.recvfrom(65535)
+            else:
+                data, addr = conn.recv(4096), None
+        except (BlockingIOError, ConnectionRefusedError, InterruptedError):
+            return True  # ICMP port unreachable from a udpout peer that is not up yet
+        except OSError:
+            return False
+        if not data:
+            return True
+        if isinstance(data, str):
+            data = data.encode("latin-1")
+        self._handling.channel = ch
+        try:
+            valid = self._deliver(ch, data, is_udp, handle)
+        finally:
+            self._handling.channel = None
+        if valid and is_udp and conn.udp_server and addr is not None:
+            self._learn_peer(ch, addr, greeting)
+        return True
+
+    def _deliver(self, ch: Channel, data: bytes, is_udp: bool, handle: Callable[[object], None]) -> bool:
+        """Parse one read's bytes and hand on its messages; whether any was valid MAVLink."""
+        parser = ch.parser
+        try:
+            msgs = parser.parse_buffer(data) or []
         except Exception as exc:  # the parser should not raise, but a forged frame must never kill us
             msgs = []
             self.bad(f"unparseable bytes ({exc})")
-        if is_udp and self._parser.buf_len() > 0:
+        if is_udp and parser.buf_len() > 0:
             # MAVLink frames never span datagrams: a truncated frame left in the buffer
             # would swallow the start of the next datagram.
-            self._parser.buf = bytearray()
-            self._parser.buf_index = 0
-            self._parser.expected_length = mavlink.HEADER_LEN_V1 + 2
+            parser.buf = bytearray()
+            parser.buf_index = 0
+            parser.expected_length = mavlink.HEADER_LEN_V1 + 2
             self.bad(f"truncated frame of {len(data)} bytes")
         valid = False
         for msg in msgs:
             if msg.get_type() == "BAD_DATA":
-                self.bad(f"bad MAVLink data: {getattr(msg, 'reason', '?')}")
+                if "signature" not in str(getattr(msg, "reason", "")):  # those are counted as refused
+                    self.bad(f"bad MAVLink data: {getattr(msg, 'reason', '?')}")
                 continue
             if msg.get_type().startswith("UNKNOWN_"):
                 # pymavlink cannot check the CRC of an id it does not know: random bytes
@@ -144,11 +241,12 @@ class Link:
                 self.bad(f"cannot handle {msg.get_type()}: {type(exc).__name__}: {exc}")
         return valid
 
-    def _learn_peer(self, conn, addr, greeting: Callable[[], object]) -> None:
+    def _learn_peer(self, ch: Channel, addr, greeting: Callable[[], object]) -> None:
         # Only a sender of valid MAVLink becomes a peer: garbage must not redirect telemetry.
+        conn = ch.conn
         new_peer = addr not in conn.clients
         conn.clients.add(addr)
         conn.clients_last_alive[addr] = time.time()
         if new_peer:  # greet it now rather than at the next heartbeat, so it connects at once
-            self._journal.event(f"ground station at {addr[0]}:{addr[1]}")
-            self.send(greeting())
+            self._journal.event(f"ground station at {addr[0]}:{addr[1]} on the {ch.name} link")
+            self.send(greeting(), ch)

@@ -36,6 +36,27 @@ class Params:
             "MPC_LAND_SPEED": _Param(cfg.land_speed_m_s, 0.1, 50.0),
             "COM_DISARM_LAND": _Param(cfg.disarm_after_land_s, 0.0, 60.0),
             "LNDMC_ALT_MAX": _Param(cfg.max_alt_m, 1.0, 10000.0),
+            # return and missions
+            "RTL_RETURN_ALT": _Param(min(30.0, cfg.max_alt_m), 0.0, 10000.0),
+            "NAV_ACC_RAD": _Param(2.0, 0.05, 200.0),
+            "NAV_MC_ALT_RAD": _Param(0.8, 0.05, 200.0),
+            # geofence: 0 disables a limit; GF_ACTION 0 none, 1 warn, 2 hold, 3 return, 5 land
+            "GF_MAX_HOR_DIST": _Param(1000.0, 0.0, 1e7),
+            "GF_MAX_VER_DIST": _Param(cfg.max_alt_m, 0.0, 1e5),
+            "GF_ACTION": _Param(2.0, 0.0, 5.0),
+            # datalink loss: NAV_DLL_ACT 0 off, 1 hold, 2 return, 3 land, after COM_DL_LOSS_T s
+            # without a ground station's heartbeat and COM_FAIL_ACT_T s of hold
+            "NAV_DLL_ACT": _Param(2.0, 0.0, 3.0),
+            "COM_DL_LOSS_T": _Param(10.0, 0.5, 300.0),
+            "COM_FAIL_ACT_T": _Param(5.0, 0.0, 25.0),
+            # battery; COM_LOW_BAT_ACT 0 warn, 2 land at critical, 3 return at critical and land at emergency
+            "BAT1_CAPACITY": _Param(5000.0, 1.0, 1e6),
+            "BAT1_N_CELLS": _Param(4.0, 1.0, 14.0),
+            "SIM_BAT_HOVER_A": _Param(15.0, 0.0, 1000.0),
+            "BAT_LOW_THR": _Param(0.15, 0.12, 0.5),
+            "BAT_CRIT_THR": _Param(0.07, 0.05, 0.5),
+            "BAT_EMERGEN_THR": _Param(0.05, 0.03, 0.5),
+            "COM_LOW_BAT_ACT": _Param(3.0, 0.0, 3.0),
         }
         self._watchers: dict[str, list[Callable[[float], None]]] = {}
 

@@ -15,10 +15,12 @@ from pymavlink.dialects.v20 import common as mavlink
 from protocol.geo import ned_to_geo
 
 from .autopilot import Autopilot
+from .battery import Battery
 from .config import VehicleConfig
 from .dynamics import Dynamics
 from .journal import Journal
 from .link import Link
+from .mission import Mission
 from .modes import AUTO_MODES, Mode
 
 HEARTBEAT_PERIOD_S = 1.0
@@ -31,8 +33,10 @@ class Telemetry:
     sends the streams at their rates."""
 
     def __init__(self, config: VehicleConfig, lock: threading.RLock, journal: Journal, link: Link,
-                 dynamics: Dynamics, autopilot: Autopilot):
+                 dynamics: Dynamics, autopilot: Autopilot, battery: Battery, mission: Mission):
         self._config = config
+        self._battery = battery
+        self._mission = mission
         self._lock = lock
         self._journal = journal
         self._link = link
@@ -52,6 +56,8 @@ class Telemetry:
             mavlink.MAVLINK_MSG_ID_VFR_HUD: self._vfr_hud,
             mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: self._gps_global_origin,
             mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self._autopilot_version,
+            mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: self._battery_status,
+            mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: self.mission_current,
         }
         self._default_rates_hz = {
             mavlink.MAVLINK_MSG_ID_HEARTBEAT: 1.0 / HEARTBEAT_PERIOD_S,
@@ -63,6 +69,8 @@ class Telemetry:
             mavlink.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
             mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 2.0,
             mavlink.MAVLINK_MSG_ID_VFR_HUD: 4.0,
+            mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0,
+            mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
         }
         # message id -> period in wall seconds; SET_MESSAGE_INTERVAL changes it
         self._streams: dict[int, float] = {mid: 1.0 / hz for mid, hz in self._default_rates_hz.items()}
@@ -146,9 +154,37 @@ class Telemetry:
                    | s.MAV_SYS_STATUS_SENSOR_YAW_POSITION | s.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
                    | s.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL | s.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
                    | s.MAV_SYS_STATUS_AHRS | s.MAV_SYS_STATUS_SENSOR_BATTERY | s.MAV_SYS_STATUS_PREARM_CHECK)
-        armed = self._autopilot.armed
-        return self._encoder.sys_status_encode(sensors, sensors, sensors, 200, 16200, 500 if armed else 0,
-                                               100, 0, 0, 0, 0, 0, 0)
+        fence = s.MAV_SYS_STATUS_GEOFENCE
+        enabled = sensors | (fence if self._autopilot.fence_enabled else 0)
+        healthy = enabled & ~(fence if self._autopilot.fence_breached else 0)  # ground stations show a breach
+        volts, amps, _, remaining = self._battery.reading()
+        return self._encoder.sys_status_encode(enabled, enabled, healthy, 200, round(volts * 1000), round(amps * 100),
+                                               round(remaining * 100), 0, 0, 0, 0, 0, 0)
+
+    def _battery_status(self):
+        volts, amps, used_mah, remaining = self._battery.reading()
+        cells = self._battery.cells
+        cell_mv = min(65534, round(volts * 1000 / cells))
+        voltages = [cell_mv] * min(cells, 10) + [65535] * (10 - min(cells, 10))  # UINT16_MAX: no cell
+        hover = max(amps, 0.1)
+        seconds_left = round(self._battery.capacity_mah * remaining / 1000 / hover * 3600)
+        return self._encoder.battery_status_encode(0, mavlink.MAV_BATTERY_FUNCTION_ALL, mavlink.MAV_BATTERY_TYPE_LIPO,
+                                                   32767, voltages, round(amps * 100), round(used_mah),
+                                                   round(volts * used_mah * 3.6 / 100), round(remaining * 100),
+                                                   seconds_left, int(self._battery.charge))
+
+    def mission_current(self):
+        items = self._mission.items
+        seq = self._mission.current
+        if not items:
+            state = mavlink.MISSION_STATE_NO_MISSION
+        elif self._mission.finished:
+            state = mavlink.MISSION_STATE_COMPLETE
+        elif self._autopilot.mode == Mode.MISSION:
+            state = mavlink.MISSION_STATE_ACTIVE
+        else:
+            state = mavlink.MISSION_STATE_NOT_STARTED if seq == 0 else mavlink.MISSION_STATE_PAUSED
+        return self._encoder.mission_current_encode(min(seq, max(0, len(items) - 1)), len(items), state)
 
     def _extended_sys_state(self):
         return self._encoder.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_UNDEFINED,

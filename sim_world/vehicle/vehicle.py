@@ -7,11 +7,15 @@ import time
 from protocol.errors import MissionError
 
 from .autopilot import Autopilot
+from .battery import Battery
 from .commands import Commands
 from .config import VehicleConfig
+from .datalink import Datalink
 from .dynamics import Dynamics
 from .journal import Journal
 from .link import Link
+from .mission import Mission
+from .mission_protocol import MissionService
 from .modes import LandedState, Mode
 from .offboard import Offboard
 from .params import Params
@@ -37,10 +41,19 @@ class Vehicle:
         self._params = Params(cfg, self._lock, self._journal, self._link)
         self._dynamics = Dynamics(self._lock, self._journal, ceiling=lambda: self._params.get("LNDMC_ALT_MAX"))
         self._offboard = Offboard(self._lock, self._journal, self._link, self._dynamics)
+        self._battery = Battery(self._lock, self._journal, self._params)
+        self._datalink = Datalink(self._lock)
+        enc = self._link.encoder
+        self._mission = Mission(self._lock, self._params, (cfg.home_lat, cfg.home_lon, cfg.home_alt_m),
+                                on_reached=lambda seq: self._link.send(enc.mission_item_reached_encode(seq)),
+                                on_current=lambda seq: self._link.send(self._telemetry.mission_current()))
+        self._missions = MissionService(self._lock, self._journal, self._link, self._mission)
         self._autopilot = Autopilot(self._lock, self._journal, self._dynamics, self._params, self._offboard,
-                                    cruise_speed_m_s=cfg.max_speed_m_s)
-        self._telemetry = Telemetry(cfg, self._lock, self._journal, self._link, self._dynamics, self._autopilot)
-        self._commands = Commands(cfg, self._link, self._autopilot, self._telemetry, self._params, self._offboard)
+                                    self._battery, self._datalink, self._mission, cruise_speed_m_s=cfg.max_speed_m_s)
+        self._telemetry = Telemetry(cfg, self._lock, self._journal, self._link, self._dynamics, self._autopilot,
+                                    self._battery, self._mission)
+        self._commands = Commands(cfg, self._link, self._journal, self._autopilot, self._telemetry, self._params,
+                                  self._offboard, self._datalink, self._mission, self._missions)
 
     # --- lifecycle -------------------------------------------------------------------
 
@@ -49,17 +62,24 @@ class Vehicle:
         if self._threads:
             raise MissionError("vehicle already started")
         self._link.open()
+        self._journal.speaker = self._link.say
         self._stop.clear()
         self._telemetry.restart_clock()
         self._journal.event("booted")
         loops = (("recv", self._link.run, (self._stop, self._commands.handle, self._telemetry.heartbeat)),
                  ("physics", self._dynamics.run, (self._stop, self.config.time_scale, self._autopilot)),
-                 ("telemetry", self._telemetry.run, (self._stop,)))
+                 ("telemetry", self._telemetry.run, (self._stop,)),
+                 ("missions", self._tick_missions, ()))
         for name, target, args in loops:
             thread = threading.Thread(target=target, args=args, name=f"vehicle-{name}", daemon=True)
             thread.start()
             self._threads.append(thread)
         return self
+
+    def _tick_missions(self) -> None:
+        """Drive the mission protocol's retries and timeouts (wall time, like the ground station's)."""
+        while not self._stop.wait(0.05):
+            self._missions.tick(time.monotonic())
 
     def stop(self) -> None:
         """Stop the threads (joined within 2 s) and close the link. Idempotent."""
@@ -68,6 +88,7 @@ class Vehicle:
         for thread in self._threads:
             thread.join(max(0.0, deadline - time.monotonic()))
         self._threads = []
+        self._journal.speaker = None
         self._link.close()
 
     def __enter__(self) -> "Vehicle":
@@ -102,6 +123,33 @@ class Vehicle:
     def bad_frames(self) -> int:
         """Datagrams or frames received that were not valid MAVLink, or that broke a handler."""
         return self._link.bad_frames
+
+    @property
+    def refused_unsigned(self) -> int:
+        """Frames the signed ground-station link refused (unsigned or wrongly signed)."""
+        return self._link.refused_unsigned
+
+    @property
+    def statustexts(self) -> list[tuple[int, str]]:
+        """(MAV_SEVERITY, text) of every STATUSTEXT the vehicle sent, oldest first."""
+        return self._journal.said
+
+    @property
+    def battery_remaining(self) -> float:
+        """Fraction of the battery's capacity left, 0..1."""
+        return self._battery.remaining
+
+    def param(self, name: str) -> float:
+        return self._params.get(name)
+
+    def set_param(self, name: str, value: float) -> float:
+        """Set a parameter as PARAM_SET would (within its range); returns the value stored."""
+        self._params.set(name, value)
+        return self._params.get(name)
+
+    def address(self, link: str = "vehicle") -> tuple[str, int] | None:
+        """The (host, port) the `vehicle` or `gcs` link's UDP socket is bound to, once started."""
+        return self._link.address(link)
 
     @property
     def max_altitude_m(self) -> float:
