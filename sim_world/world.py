@@ -466,7 +466,8 @@ class World(Lifecycle):
         assert self.desk is not None
         with self.desk.cv:
             robots = dict(self.judge.positions)
-        scene = Scene(self.truth.free, robots, list(self.truth.goals), self.landmarks)
+        scene = Scene(self.truth.free, robots, list(self.truth.goals), self.landmarks,
+                      goal_pads=bool(self.camera_model.goal_pads))
         view = self.camera_view()
         t = self.vehicle.sim_time_s if self.vehicle is not None else time.monotonic() - self._t0
         seed = self._next_seq()

@@ -323,3 +323,45 @@ def test_bad_camera_values_stop_run_before_anything_starts():
                          capture_output=True, text=True, timeout=60)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2 and run.stdout == "" and len(lines) == 1 and "jpeg_quality" in lines[0], lines
+
+
+# --- a robot on its goal ------------------------------------------------------------------
+
+def _green(image: np.ndarray) -> np.ndarray:
+    hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
+    return cv2.inRange(hsv, (45, 110, 110), (75, 255, 255)) > 0
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.6])
+def test_a_robot_on_a_goal_leaves_a_green_frame_around_its_readable_marker(yaw):
+    free = np.ones((8, 10), bool)
+    on_goal, beside = (3, 3), (6, 4)
+    scene = Scene(free, {5: on_goal, 17: beside}, [on_goal, (7, 6)], goal_pads=True)
+    model = CameraModel(width=1000, height=800)
+    pose = (-4.0, 5.0, -5.0, yaw)
+    image = render(scene, pose, model, CELL)
+    found = _detect(image, "DICT_4X4_1000")
+    assert set(found) == {5, 17}
+    H = floor_homography(pose, model, CELL)
+    green = _green(image)
+
+    def fraction(cell, r_in: float, r_out: float) -> float:
+        """Green share of the image pixels whose floor point lies in the square ring (r_in, r_out)."""
+        ys, xs = np.mgrid[0:model.height, 0:model.width]
+        floor = cv2.perspectiveTransform(np.stack([xs, ys], -1).reshape(-1, 1, 2).astype(np.float64),
+                                         np.linalg.inv(H)).reshape(model.height, model.width, 2)
+        d = np.maximum(np.abs(floor[..., 0] - cell[0] - 0.5), np.abs(floor[..., 1] - cell[1] - 0.5))
+        ring = (d > r_in) & (d < r_out)
+        return float(green[ring].mean())
+
+    assert fraction(on_goal, 0.41, 0.47) > 0.95          # the frame between body (0.4) and pad (0.48)
+    assert fraction(on_goal, 0.0, 0.39) < 0.01           # the body hides the rest of the pad
+    assert fraction(beside, 0.41, 0.47) < 0.01           # a robot off any goal: floor around it
+    assert fraction((7, 6), 0.0, 0.47) > 0.95            # a free goal: the whole pad
+    # The marker is as large as the body allows: 6/7 of the 0.8-cell body.
+    side = np.linalg.norm(found[5][0] - found[5][1]) / (model.fx / 5.0)
+    assert side == pytest.approx(0.8 * 6 / 7, abs=0.03)
+
+
+def test_the_realistic_world_uses_the_pad_layout_and_the_ideal_one_todays():
+    assert camera_model_from("realistic").goal_pads == 1 and camera_model_from("ideal").goal_pads == 0

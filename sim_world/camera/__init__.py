@@ -13,6 +13,20 @@ from the published `CameraFrame` fields only):
 - the pose published in a CameraFrame is the vehicle's ESTIMATE (estimate.py),
   the image is rendered from the truth.
 
+What is on the floor (render.Scene), in cell units (a cell is 1 x 1):
+- floor light grey (215), shelves dark brown, outside the grid dark blue;
+- surveyed landmarks (scenarios.landmarks, `landmark_spacing` > 0): DICT_5X5_1000
+  markers, black square 0.75 of a 2x2 (or 1x1) block of shelf cells, white quiet
+  zone filling the rest of the block, top edge north;
+- `goal_pads` 0 (ideal, today's layout): a goal is a green disc of radius 0.345
+  with a dark ring to 0.415; a robot is a white full cell carrying its
+  DICT_4X4_1000 marker of 0.75 cell (module 1/8 cell), which hides a goal under it;
+- `goal_pads` 1 (realistic): a goal is a green square pad of 0.96 cell centred in
+  its cell; a robot is a white square body of 0.8 cell centred in its cell, its
+  marker (6 modules: 4x4 data + black border) 6/7 of the body = 0.686 cell
+  (module 0.8/7 = 0.114 cell) centred with half a module of white around it; a
+  robot on a goal therefore shows a green frame 0.08 cell wide around its body.
+
 Modules: model (keys, presets), render (geometry, texture, lens), degrade
 (blur, lighting, vignetting, noise), encode (PNG/JPEG, the message), estimate
 (the pose error), capture (one exposure: all of them).
