@@ -258,9 +258,12 @@ class World(Lifecycle):
         else:
             from .camera import CameraModel
             self.camera_model = CameraModel()
-        from .camera import PoseEstimator, scene_landmarks
+        from .camera import PoseEstimator, prepare, scene_landmarks
         self.landmarks = scene_landmarks(self.truth.free, cfg.cell_size_m, self.camera_model)
         self.estimator = PoseEstimator(self.camera_model, cfg.seed)
+        # The lens and noise tables take seconds at 12 MP: built on the camera's thread while the
+        # vehicle takes off, so the first image is not late.
+        self._camera_pool.submit(prepare, self.camera_model)
         if cfg.mavlink:
             from .vehicle import Vehicle, VehicleConfig
             self.vehicle = Vehicle(VehicleConfig(url=cfg.mavlink, home_lat=cfg.home_lat, home_lon=cfg.home_lon,

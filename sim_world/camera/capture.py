@@ -6,10 +6,11 @@ from typing import NamedTuple
 
 from protocol.messages import CameraFrame
 
+from .degrade import prepare_degrade
 from .encode import encode_frame
 from .estimate import PoseEstimator
 from .model import CameraModel
-from .render import CameraPose, Scene, render
+from .render import CameraPose, Scene, lens_for, render
 
 
 class VehicleView(NamedTuple):
@@ -34,3 +35,10 @@ def capture_frame(scene: Scene, view: VehicleView, model: CameraModel, cell_size
     image = render(scene, view.pose, model, cell_size_m, seed=seed if seed is not None else seq,
                    velocity_ned=(view.vel_north, view.vel_east, view.vel_down))
     return encode_frame(image, estimator.estimate(view.pose, time_s), model, time_s, seq)
+
+
+def prepare(model: CameraModel) -> None:
+    """Build the model's cached tables (the lens's distortion map, the gain field, the noise
+    bank: about 2 s at 12 MP) ahead of the first exposure, which would otherwise pay for them."""
+    lens_for(model)
+    prepare_degrade(model)

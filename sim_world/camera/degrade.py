@@ -51,6 +51,14 @@ def _noise_bank(width: int, height: int) -> np.ndarray:
     return noise
 
 
+def prepare_degrade(model: CameraModel) -> None:
+    """Build the tables `degrade` will use for this model."""
+    if model.lighting > 0 or model.vignetting > 0:
+        _gain(model.width, model.height, model.lighting, model.lighting_angle_deg, model.vignetting, model.cx, model.cy)
+    if model.noise_std > 0:
+        _noise_bank(model.width, model.height)
+
+
 def motion_kernel(dx: float, dy: float) -> np.ndarray:
     """A normalised line kernel for a smear of (dx, dy) pixels: the segment sampled every
     quarter pixel and splatted bilinearly, so sub-pixel lengths and any angle are exact."""
