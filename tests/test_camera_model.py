@@ -365,3 +365,27 @@ def test_a_robot_on_a_goal_leaves_a_green_frame_around_its_readable_marker(yaw):
 
 def test_the_realistic_world_uses_the_pad_layout_and_the_ideal_one_todays():
     assert camera_model_from("realistic").goal_pads == 1 and camera_model_from("ideal").goal_pads == 0
+
+
+def test_a_gimballed_camera_stays_level_and_a_body_fixed_one_tilts_with_the_vehicle():
+    scene = _scene()
+    tilted = VehicleView(-8.0, 10.0, -12.0, 0.2, 0.06, -0.04)
+    level = VehicleView(-8.0, 10.0, -12.0, 0.2)
+    gimballed = CameraModel(width=640, height=480)
+    assert gimballed.gimbal == 1
+    a = capture_frame(scene, tilted, gimballed, CELL, PoseEstimator(gimballed), 0.0)
+    b = capture_frame(scene, level, gimballed, CELL, PoseEstimator(gimballed), 0.0)
+    assert a == b and a.roll_rad == 0.0
+    fixed = CameraModel(width=640, height=480, gimbal=0)
+    c = capture_frame(scene, tilted, fixed, CELL, PoseEstimator(fixed), 0.0)
+    assert (c.roll_rad, c.pitch_rad) == (0.06, -0.04) and c.png != a.png
+
+
+def test_the_readme_documents_every_camera_key_with_its_default():
+    from pathlib import Path
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    for key, (default, _) in KEYS.items():
+        row = next((line for line in readme.splitlines() if line.startswith(f"| `{key}` |")), None)
+        assert row is not None, f"README has no row for --camera key {key}"
+        if default is not None and key not in ("width", "height"):
+            assert row.split("|")[2].strip() == str(default), row

@@ -7,8 +7,8 @@ multicopter's does: the tilt that produces the horizontal acceleration
 (atan(a / g), forward acceleration = nose down, rightward = roll right, capped
 at MAX_TILT_DEG), the acceleration being each step's velocity change spread over
 the attitude loop's lag TILT_TAU_S (first order); plus, in the air,
-a small seeded hover wobble (two incommensurate sines per axis). The camera is
-fixed to the body, so it sees the floor through this attitude. `time_scale`
+a small seeded hover wobble (two incommensurate sines per axis). A camera fixed
+to the body (sim_world.camera, `gimbal=0`) sees the floor through this attitude. `time_scale`
 simulated seconds pass per wall second, so a demo need not wait for real flight.
 
 Frames: local NED with the origin at home (the warehouse grid's top-left corner, at
