@@ -455,10 +455,6 @@ class World(Lifecycle):
         n, e, d = st.pos
         return VehicleView(n, e, d - self.cfg.camera_height_m, st.yaw, st.roll, st.pitch, *st.vel)
 
-    def camera_pose(self) -> tuple[float, float, float, float]:
-        """(north, east, down, yaw) of the camera, true."""
-        return tuple(self.camera_view()[:4])  # type: ignore[return-value]
-
     def capture(self):
         from .camera import CameraModel, PoseEstimator, Scene, capture_frame
 
