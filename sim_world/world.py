@@ -249,15 +249,11 @@ class World(Lifecycle):
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
         cfg = self.cfg
-        if cfg.camera:
-            from .camera import CameraModel
-            try:
-                self.camera_model = CameraModel(**cfg.camera)
-            except TypeError as exc:
-                raise UavRobotsError(f"camera options: {exc}") from None
-        else:
-            from .camera import CameraModel
-            self.camera_model = CameraModel()
+        from .camera import CameraModel
+        try:
+            self.camera_model = CameraModel(**cfg.camera)
+        except TypeError as exc:
+            raise UavRobotsError(f"camera options: {exc}") from None
         from .camera import PoseEstimator, prepare, scene_landmarks
         self.landmarks = scene_landmarks(self.truth.free, cfg.cell_size_m, self.camera_model)
         self.estimator = PoseEstimator(self.camera_model, cfg.seed)
