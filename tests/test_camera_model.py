@@ -389,3 +389,30 @@ def test_the_readme_documents_every_camera_key_with_its_default():
         assert row is not None, f"README has no row for --camera key {key}"
         if default is not None and key not in ("width", "height"):
             assert row.split("|")[2].strip() == str(default), row
+
+
+def test_a_realistic_world_serves_jpeg_frames_with_an_estimated_pose_and_its_landmarks():
+    from protocol.messages import CameraFrame, CameraRequest, WorldInfo, WorldInfoRequest, decode, encode
+    from protocol.transport import MemoryBus, MemoryTransport
+    from sim_world.world import World, WorldConfig
+
+    bus = MemoryBus()
+    camera = {**camera_options("realistic"), "width": 1200, "height": 900}
+    world = World(WorldConfig(fleet="t", robots=4, mavlink=None, camera=camera, seed=5), MemoryTransport(bus))
+    world.start()
+    client = MemoryTransport(bus)
+    try:
+        info = decode(client.request(world.keys.world_info, encode(WorldInfoRequest()), 5)[0], WorldInfo)
+        frame = decode(client.request(world.keys.camera, encode(CameraRequest()), 30)[0], CameraFrame)
+    finally:
+        client.close()
+        world.close()
+    assert info.landmark_family == "DICT_5X5_1000" and len(info.landmarks) >= 6
+    assert frame.encoding == "jpeg" and (frame.pose_sigma_m, frame.yaw_sigma_deg, frame.k1) == (0.2, 1.5, -0.05)
+    truth = world.camera_view()
+    assert (frame.north_m, frame.east_m) != (truth.north_m, truth.east_m)
+    image = cv2.imdecode(np.frombuffer(frame.png, np.uint8), cv2.IMREAD_COLOR)
+    published = {lid for lid, _, _ in info.landmarks}
+    seen = set(_detect(image))
+    assert len(seen) >= 6 and seen <= published
+    assert set(_detect(image, "DICT_4X4_1000")) == set(range(4))
