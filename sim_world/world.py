@@ -33,7 +33,7 @@ from protocol.transport import IncomingQuery, Transport, open_session
 from scenarios.landmarks import LandmarkSet
 from scenarios.maps import place, resolve_map
 
-from .camera.model import DEFAULT_CAMERA_PRESET, camera_options
+from .camera.model import DEFAULT_CAMERA_PRESET, camera_model_from, camera_options
 from .moves import MoveJudge
 
 # PX4 SITL's default home: a field near Zurich. The grid's top-left corner is there.
@@ -556,6 +556,7 @@ def config_from_args(args: argparse.Namespace) -> WorldConfig:
         if len(home) != 3:
             raise UavRobotsError(f"--home {args.home!r} is not LAT,LON,ALT")
     mav = None if args.mavlink.lower() in ("none", "off", "") else args.mavlink
+    camera_model_from(args.camera, DRONE_CAMERA)   # every value checked before anything starts
     cfg = WorldConfig(fleet=args.fleet, map=args.map, robots=args.robots, seed=args.seed, scen=args.scen,
                       connectivity=args.connectivity, cell_size_m=args.cell_size, home_lat=home[0],
                       home_lon=home[1], home_alt_m=home[2], mavlink=mav, time_scale=args.time_scale,

@@ -318,8 +318,9 @@ def test_bad_camera_values_are_one_line_errors(text, words):
         camera_model_from(text, {"width": 4000, "height": 3000})
 
 
-def test_bad_camera_values_stop_run_before_anything_starts():
-    run = subprocess.run([sys.executable, "-m", "uav_robots", "run", "--camera", "realistic,jpeg_quality=300"],
+@pytest.mark.parametrize("command", [["uav_robots", "run"], ["sim_world", "--mavlink", "none"]])
+def test_bad_camera_values_stop_run_and_the_world_before_anything_starts(command):
+    run = subprocess.run([sys.executable, "-m", *command, "--camera", "realistic,jpeg_quality=300"],
                          capture_output=True, text=True, timeout=60)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2 and run.stdout == "" and len(lines) == 1 and "jpeg_quality" in lines[0], lines
