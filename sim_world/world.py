@@ -31,8 +31,10 @@ from protocol.messages import (CameraRequest, MissionEnd, MoveBatch, MoveBatchRe
                                RecordRequest, WorldInfo, WorldInfoRequest, decode, encode)
 from protocol.process import Lifecycle
 from protocol.transport import IncomingQuery, Transport, open_session
+from scenarios.landmarks import LandmarkSet
 from scenarios.maps import place, resolve_map
 
+from .camera.model import DEFAULT_CAMERA_PRESET, camera_model_from, camera_options
 from .moves import MoveJudge
 
 # PX4 SITL's default home: a field near Zurich. The grid's top-left corner is there.
@@ -84,7 +86,7 @@ class WorldConfig:
             raise UavRobotsError("--gcs and --mavlink-key need a vehicle (--mavlink is none)")
 
 
-def vehicle_config(cfg: WorldConfig) -> Any:
+def vehicle_config(cfg: WorldConfig, hover_wobble_deg: float = 0.0) -> Any:
     """The vehicle's configuration, checked (links, bind address, signing key): one-line errors."""
     from .vehicle.config import VehicleConfig, read_signing_key
 
@@ -94,7 +96,8 @@ def vehicle_config(cfg: WorldConfig) -> Any:
         key = read_signing_key(cfg.mavlink_key) if cfg.mavlink_key else None
         return VehicleConfig(url=cfg.mavlink or "udpout:127.0.0.1:14540", home_lat=cfg.home_lat,
                              home_lon=cfg.home_lon, home_alt_m=cfg.home_alt_m, time_scale=cfg.time_scale,
-                             gcs_url=cfg.gcs, signing_key=key, bind_host=cfg.mavlink_bind)
+                             gcs_url=cfg.gcs, signing_key=key, bind_host=cfg.mavlink_bind,
+                            hover_wobble_deg=hover_wobble_deg, seed=cfg.seed)
     except MissionError as exc:
         raise UavRobotsError(str(exc)) from None
 
@@ -249,6 +252,8 @@ class World(Lifecycle):
         self.cfg = cfg
         self.keys = Keys(cfg.fleet)
         self.truth = build_truth(cfg)
+        self.landmarks: LandmarkSet | None = None
+        self.estimator: Any = None
         self.judge = MoveJudge(self.truth.free, dict(self.truth.starts), cfg.connectivity,
                                skid_prob=cfg.slip, seed=cfg.seed)
         self.desk: MoveDesk | None = None
@@ -268,15 +273,20 @@ class World(Lifecycle):
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
         cfg = self.cfg
-        if cfg.camera:
-            from .camera import CameraModel
-            try:
-                self.camera_model = CameraModel(**cfg.camera)
-            except TypeError as exc:
-                raise UavRobotsError(f"camera options: {exc}") from None
+        from .camera import CameraModel
+        try:
+            self.camera_model = CameraModel(**cfg.camera)
+        except TypeError as exc:
+            raise UavRobotsError(f"camera options: {exc}") from None
+        from .camera import PoseEstimator, prepare, scene_landmarks
+        self.landmarks = scene_landmarks(self.truth.free, cfg.cell_size_m, self.camera_model)
+        self.estimator = PoseEstimator(self.camera_model, cfg.seed)
+        # The lens and noise tables take seconds at 12 MP: built on the camera's thread while the
+        # vehicle takes off, so the first image is not late.
+        self._camera_pool.submit(prepare, self.camera_model)
         if cfg.mavlink:
             from .vehicle import Vehicle
-            self.vehicle = Vehicle(vehicle_config(cfg))
+            self.vehicle = Vehicle(vehicle_config(cfg, hover_wobble_deg=self.camera_model.wobble_deg))
             # The geofence must not cut off part of a large floor: the farthest corner, with a margin.
             h, w = self.truth.free.shape
             reach = 1.2 * math.hypot(h, w) * cfg.cell_size_m + 10.0
@@ -360,8 +370,12 @@ class World(Lifecycle):
             return
         h, w = self.truth.free.shape
         c = self.cfg
+        marks = self.landmarks
+        extra: dict[str, Any] = {}
+        if marks is not None:
+            extra = dict(landmark_family=marks.family, landmark_size_m=marks.size_m, landmarks=list(marks.landmarks))
         q.reply(encode(WorldInfo(width=w, height=h, cell_size_m=c.cell_size_m, home_lat=c.home_lat,
-                                 home_lon=c.home_lon, home_alt_m=c.home_alt_m, seq=self._next_seq())))
+                                 home_lon=c.home_lon, home_alt_m=c.home_alt_m, seq=self._next_seq(), **extra)))
 
     def _on_move(self, q: IncomingQuery) -> None:
         batch = b'"MoveBatch"' in q.payload[:200]
@@ -454,30 +468,36 @@ class World(Lifecycle):
             self.warn(f"camera failed: {type(exc).__name__}: {exc}")
             q.finish()
 
-    def camera_pose(self) -> tuple[float, float, float, float]:
-        """The camera's pose in the grid's NED frame: the vehicle's, lifted by the mount height."""
+    def camera_view(self):
+        """The camera's true pose and motion in the grid's NED frame: the vehicle's, lifted by the mount height."""
+        from .camera import VehicleView
         if self.vehicle is None:
             # No vehicle (tests of the services): a fixed camera over the centre that sees the whole floor.
             h, w = self.truth.free.shape
             c, m = self.cfg.cell_size_m, self.camera_model
             alt = 1.1 * max(w * c * m.fx / m.width, h * c * m.fy / m.height)
-            return (-h * c / 2, w * c / 2, -alt, 0.0)
-        n, e, d, yaw = self.vehicle.pose()
-        return (n, e, d - self.cfg.camera_height_m, yaw)
+            return VehicleView(-h * c / 2, w * c / 2, -alt, 0.0)
+        st = self.vehicle.state()
+        n, e, d = st.pos
+        return VehicleView(n, e, d - self.cfg.camera_height_m, st.yaw, st.roll, st.pitch, *st.vel)
 
     def capture(self):
-        from .camera import CameraModel, Scene, encode_frame, render
+        from .camera import CameraModel, PoseEstimator, Scene, capture_frame
 
-        if self.camera_model is None:
+        if self.camera_model is None:   # never started (tests of capture alone)
             self.camera_model = CameraModel()
+        if self.estimator is None:
+            self.estimator = PoseEstimator(self.camera_model, self.cfg.seed)
         assert self.desk is not None
         with self.desk.cv:
             robots = dict(self.judge.positions)
-        scene = Scene(self.truth.free, robots, list(self.truth.goals))
-        pose = self.camera_pose()
-        image = render(scene, pose, self.camera_model, self.cfg.cell_size_m, seed=self._next_seq())
+        scene = Scene(self.truth.free, robots, list(self.truth.goals), self.landmarks,
+                      goal_pads=bool(self.camera_model.goal_pads))
+        view = self.camera_view()
         t = self.vehicle.sim_time_s if self.vehicle is not None else time.monotonic() - self._t0
-        return encode_frame(image, pose, self.camera_model, t, seq=self._next_seq())
+        seed = self._next_seq()
+        return capture_frame(scene, view, self.camera_model, self.cfg.cell_size_m, self.estimator, t,
+                             seq=self._next_seq(), seed=seed)
 
     def _on_mission_end(self, key: str, payload: bytes) -> None:
         try:
@@ -511,20 +531,6 @@ def add_world_parser(subparsers: Any) -> argparse.ArgumentParser:
     return p
 
 
-def camera_options(text: str) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for part in filter(None, text.split(",")):
-        key, sep, value = part.partition("=")
-        try:
-            num = float(value)
-        except ValueError:
-            raise UavRobotsError(f"--camera {text!r}: {part!r} is not name=number") from None
-        if not sep:
-            raise UavRobotsError(f"--camera {text!r}: {part!r} is not name=number")
-        out[key.strip()] = int(num) if key.strip() in ("width", "height") else num
-    return out
-
-
 # A 12 MP camera, as on common survey drones: it covers the 450x450 warehouse in 12
 # images at 20 px per cell where a 1280x960 one needs 80 (and 80 flights between them).
 DRONE_CAMERA = {"width": 4000, "height": 3000}
@@ -546,9 +552,11 @@ def add_world_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cell-size", type=float, default=1.0, metavar="M", help="grid cell size in metres")
     p.add_argument("--connectivity", type=int, choices=(4, 8), default=4)
     p.add_argument("--home", default=None, metavar="LAT,LON,ALT", help="the grid corner's geodetic position")
-    p.add_argument("--camera", default="", metavar="K=V,...",
-                   help="camera options over the default 12 MP drone camera (4000x3000, 90 deg), "
-                        "e.g. width=1280,height=960,hfov_deg=90,noise_std=2,blur_sigma=1,lighting=0.3")
+    p.add_argument("--camera", default="", metavar="[PRESET,]K=V,...",
+                   help="the camera: a preset (ideal, realistic; default "
+                        f"{DEFAULT_CAMERA_PRESET}) then keys over it, on the 12 MP drone camera (4000x3000, "
+                        "90 deg), e.g. realistic,blur_sigma=2 or width=1280,height=960,noise_std=2 "
+                        "(every key: README, 'The camera')")
     p.add_argument("--fault", action="append", default=[], metavar="slip:P",
                    help="slip:P: each move ends, with probability P, in another free neighbour cell or where "
                         "it started, and the robot is told it arrived (only a camera sees the truth)")
@@ -591,6 +599,7 @@ def config_from_args(args: argparse.Namespace) -> WorldConfig:
         if len(home) != 3:
             raise UavRobotsError(f"--home {args.home!r} is not LAT,LON,ALT")
     mav = None if args.mavlink.lower() in ("none", "off", "") else args.mavlink
+    camera_model_from(args.camera, DRONE_CAMERA)   # every value checked before anything starts
     cfg = WorldConfig(fleet=args.fleet, map=args.map, robots=args.robots, seed=args.seed, scen=args.scen,
                       connectivity=args.connectivity, cell_size_m=args.cell_size, home_lat=home[0],
                       home_lon=home[1], home_alt_m=home[2], mavlink=mav, time_scale=args.time_scale,

@@ -38,6 +38,8 @@ class VehicleConfig:
     gcs_url: str | None = None
     signing_key: bytes | None = None
     bind_host: str = "127.0.0.1"
+    hover_wobble_deg: float = 0.0  # amplitude of the roll/pitch wobble in the air (see dynamics.Wobble)
+    seed: int = 0                  # of the wobble
 
     def __post_init__(self) -> None:
         check_home(self.home_lat, self.home_lon)
@@ -51,6 +53,8 @@ class VehicleConfig:
         if not (math.isfinite(self.home_alt_m) and math.isfinite(self.disarm_after_land_s)
                 and self.disarm_after_land_s >= 0):
             raise MissionError("vehicle home_alt_m and disarm_after_land_s must be finite (the latter >= 0)")
+        if not (math.isfinite(self.hover_wobble_deg) and 0 <= self.hover_wobble_deg <= 30):
+            raise MissionError(f"vehicle hover_wobble_deg must be in [0, 30], got {self.hover_wobble_deg}")
         if self.takeoff_alt_m > self.max_alt_m:
             raise MissionError(f"vehicle takeoff_alt_m {self.takeoff_alt_m} is above max_alt_m {self.max_alt_m}")
         if self.signing_key is not None and (self.gcs_url is None or len(self.signing_key) != 32):

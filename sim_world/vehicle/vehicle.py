@@ -11,7 +11,7 @@ from .battery import Battery
 from .commands import Commands
 from .config import VehicleConfig
 from .datalink import Datalink
-from .dynamics import Dynamics
+from .dynamics import Dynamics, State
 from .journal import Journal
 from .link import Link
 from .mission import Mission
@@ -39,7 +39,8 @@ class Vehicle:
         self._journal = Journal(self._lock, sim_time=lambda: self._dynamics.sim_time)
         self._link = Link(cfg, self._lock, self._journal)
         self._params = Params(cfg, self._lock, self._journal, self._link)
-        self._dynamics = Dynamics(self._lock, self._journal, ceiling=lambda: self._params.get("LNDMC_ALT_MAX"))
+        self._dynamics = Dynamics(self._lock, self._journal, ceiling=lambda: self._params.get("LNDMC_ALT_MAX"),
+                                  wobble_deg=cfg.hover_wobble_deg, seed=cfg.seed)
         self._offboard = Offboard(self._lock, self._journal, self._link, self._dynamics)
         self._battery = Battery(self._lock, self._journal, self._params)
         self._datalink = Datalink(self._lock)
@@ -102,6 +103,10 @@ class Vehicle:
     def pose(self) -> tuple[float, float, float, float]:
         """(north, east, down, yaw_rad) in the local NED frame."""
         return self._dynamics.pose()
+
+    def state(self) -> State:
+        """Position, velocity and attitude at one instant (NED, m/s, radians)."""
+        return self._dynamics.state()
 
     @property
     def armed(self) -> bool:
