@@ -136,9 +136,10 @@ class FakeUav(Waiter):
         return self.seq
 
     def plan(self, robot: int, plan_id: str, path: list[tuple[int, int]], goal: tuple[int, int] | None = None,
-             for_robot: int | None = None, start_tick: int = 0) -> None:
+             for_robot: int | None = None, start_tick: int = 0, connectivity: int = 0) -> None:
         msg = Plan(robot=robot if for_robot is None else for_robot, plan_id=plan_id, path=list(path),
-                   goal=goal if goal is not None else path[-1], start_tick=start_tick, seq=self._next())
+                   goal=goal if goal is not None else path[-1], start_tick=start_tick, connectivity=connectivity,
+                   seq=self._next())
         self.transport.put(self.keys.plan(robot), encode(msg))
 
     def tick(self, k: int, ticks: int, plan_id: str) -> None:
@@ -160,6 +161,14 @@ class FakeUav(Waiter):
         if not self.until(found, timeout):
             return None
         return next(a for a in self.acks[robot] if a.plan_id == plan_id)
+
+    def acks_for(self, robot: int, plan_id: str, count: int, timeout: float) -> list[PlanAck]:
+        """The first `count` acks for `plan_id` (fewer if they do not come within `timeout`)."""
+        def of() -> list[PlanAck]:
+            return [a for a in self.acks.get(robot, []) if a.plan_id == plan_id]
+        self.until(lambda: len(of()) >= count, timeout)
+        with self.cv:
+            return of()[:count]
 
     def state_at(self, robot: int, k: int, timeout: float) -> RobotState | None:
         def found() -> bool:
@@ -185,6 +194,8 @@ class FakeWorld(Waiter):
     keys: Keys
     refuse: set[tuple[int, int]] = field(default_factory=set)
     requests: list[MoveRequest] = field(default_factory=list)
+    request_seqs: list[int] = field(default_factory=list)   # of each MoveRequest, in arrival order
+    batch_seqs: list[int] = field(default_factory=list)     # of each MoveBatch, in arrival order
     positions: dict[int, tuple[int, int]] = field(default_factory=dict)
     answer: bool = True
 
@@ -196,11 +207,16 @@ class FakeWorld(Waiter):
     def _on_move(self, q: IncomingQuery) -> None:
         if b'"MoveBatch"' in q.payload[:200]:
             batch = decode(q.payload, MoveBatch)
+            with self.cv:
+                self.batch_seqs.append(batch.seq)
             results = [self._judge(MoveRequest(robot=r, tick=batch.tick, frm=a, to=b)) for r, a, b in batch.moves]
             reply = encode(MoveBatchResult(tick=batch.tick, results=[
                 (res.robot, res.accepted, res.cell, res.reason) for res in results]))
         else:
-            reply = encode(self._judge(decode(q.payload, MoveRequest)))
+            req = decode(q.payload, MoveRequest)
+            with self.cv:
+                self.request_seqs.append(req.seq)
+            reply = encode(self._judge(req))
         if self.answer:
             q.reply(reply)
         else:

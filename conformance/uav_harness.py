@@ -42,6 +42,7 @@ MOVE_TIMEOUT_S = 5.0    # the contract's robot-side move query timeout
 SETTLE_S = 2.0          # after the UAV exits: the longest wait for its last messages and token to arrive
 ABORT_SLACK_S = 10.0    # beyond the tick timeout, for a failing UAV to say so, end the mission and exit
 LATE_JOIN_S = 3.0       # after the UAV's token: when a late robot comes up, unless the UAV dispatches earlier
+FIRST_ACK_DELAY_S = 0.5  # the fleet's first ack comes this late, as a real robot's may: a UAV must wait for it
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,7 @@ class Misbehaviour:
     late: frozenset[int] = frozenset()         # declare the liveliness token only when the suite says so
     garbage: frozenset[int] = frozenset()      # also put garbage, wrong-version and forged messages on its keys
     liar: frozenset[int] = frozenset()         # raise Done on its goal as soon as it has a plan, never move or report
+    deaf: frozenset[int] = frozenset()         # ignore the first plan it receives (as if it was lost on the way)
 
 
 # ---------------------------------------------------------------- processes
@@ -305,8 +307,14 @@ class FakeFleet(Waiter):
         elif not up:
             # A real robot is not listening yet: the plan is lost.
             self._violation("plan-before-token", f"plan {plan.plan_id} sent to robot {rid} before its token was up")
+        elif rid in self.behaviour.deaf and self._first_plan(rid):
+            return  # the first plan to reach it is lost: the UAV must put it again
         else:
             self._jobs.put(("plan", rid, plan))
+
+    def _first_plan(self, rid: int) -> bool:
+        with self.cv:
+            return sum(1 for _, r, _, up in self.log.plans if r == rid and up) == 1
 
     def _on_tick(self, key: str, payload: bytes) -> None:
         tick = self._decode(key, payload, Tick)
@@ -399,6 +407,8 @@ class FakeFleet(Waiter):
             for payload in junk(fake, dataclasses.replace(fake, robot=other) if other is not None else None):
                 self.transport.put(self.keys.ack(rid), payload)
         ack = PlanAck(robot=rid, plan_id=plan.plan_id, ok=ok, error=error)
+        if not self.log.acks:
+            time.sleep(FIRST_ACK_DELAY_S)
         with self.cv:
             if ok and (held is None or held.plan_id != plan.plan_id):
                 robot.plan, robot.base, robot.done_for = plan, plan.start_tick or self.seen_tick, ""

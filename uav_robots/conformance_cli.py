@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from protocol.errors import UavRobotsError
+
 SUITES = {"robot": ("test_robot_conformance.py", "--robot-cmd"), "uav": ("test_uav_conformance.py", "--uav-cmd")}
 
 
@@ -15,8 +17,10 @@ def add_conformance_parser(subparsers) -> argparse.ArgumentParser:
         description="Run the conformance suite on an implementation started from a command line. Placeholders: "
                     "robot {id} {fleet} {endpoint}; uav {fleet} {endpoint} {mavlink} {mavlink_port} {robots} "
                     "{tick_timeout}. Without --cmd the project's own implementation is checked.")
-    p.add_argument("kind", choices=list(SUITES), help="which side of the protocol the implementation plays")
+    p.add_argument("kind", nargs="?", choices=list(SUITES), help="which side of the protocol the implementation plays")
     p.add_argument("--cmd", default=None, help="the implementation's command line, with placeholders")
+    p.add_argument("--list-rules", action="store_true",
+                   help="print the protocol rules the suite checks (of KIND, or all), with their tests, and exit")
     p.add_argument("pytest_args", nargs=argparse.REMAINDER,
                    help="anything after the options goes to pytest (e.g. -k liveliness, -x, --robot-timeout 5)")
     p.set_defaults(func=conformance_command)
@@ -25,6 +29,13 @@ def add_conformance_parser(subparsers) -> argparse.ArgumentParser:
 
 def conformance_command(args: argparse.Namespace) -> int:
     import conformance
+    from conformance.rules import text_table
+
+    if args.list_rules:
+        print(text_table(args.kind))
+        return 0
+    if args.kind is None:
+        raise UavRobotsError("conformance: give robot or uav (or --list-rules)")
 
     suite, option = SUITES[args.kind]
     path = Path(conformance.__file__).resolve().parent / suite
