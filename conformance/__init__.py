@@ -28,6 +28,7 @@ from protocol.transport import Handle, IncomingQuery, Transport, ZenohTransport
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_ROBOT_CMD = f"{shlex.quote(sys.executable)} -m robot_agents --id {{id}} --fleet {{fleet}} --connect {{endpoint}}"
+DEFAULT_POOL_CMD = f"{shlex.quote(sys.executable)} -m robot_agents --ids {{ids}} --fleet {{fleet}} --connect {{endpoint}}"
 
 
 def free_endpoint() -> str:
@@ -194,10 +195,11 @@ class FakeWorld(Waiter):
     keys: Keys
     refuse: set[tuple[int, int]] = field(default_factory=set)
     requests: list[MoveRequest] = field(default_factory=list)
-    request_seqs: list[int] = field(default_factory=list)   # of each MoveRequest, in arrival order
+    request_seqs: list[tuple[int, int]] = field(default_factory=list)  # (robot, seq) of each MoveRequest
     batch_seqs: list[int] = field(default_factory=list)     # of each MoveBatch, in arrival order
     positions: dict[int, tuple[int, int]] = field(default_factory=dict)
     answer: bool = True
+    garbage: bool = False      # answer with bytes that do not decode
 
     def __post_init__(self) -> None:
         Waiter.__init__(self)
@@ -215,10 +217,10 @@ class FakeWorld(Waiter):
         else:
             req = decode(q.payload, MoveRequest)
             with self.cv:
-                self.request_seqs.append(req.seq)
+                self.request_seqs.append((req.robot, req.seq))
             reply = encode(self._judge(req))
         if self.answer:
-            q.reply(reply)
+            q.reply(b'{"type":"MoveResult","v":1,"robot":"seven"}' if self.garbage else reply)
         else:
             q.finish()
 
@@ -242,15 +244,19 @@ class FakeWorld(Waiter):
         self._handle.close()
 
 
-def robot_command(template: str, robot: int, fleet: str, endpoint: str) -> list[str]:
+def robot_command(template: str, robot: int | list[int], fleet: str, endpoint: str) -> list[str]:
+    """The command line from a template: {id} for one robot; {ids} (comma-separated) for a pool."""
+    ids = robot if isinstance(robot, list) else [robot]
     try:
-        text = template.format(id=robot, fleet=fleet, endpoint=endpoint)
+        text = template.format(id=ids[0], ids=",".join(map(str, ids)), fleet=fleet, endpoint=endpoint)
     except (KeyError, IndexError, ValueError) as exc:
-        raise MissionError(f"--robot-cmd {template!r}: bad placeholder {exc}; use {{id}} {{fleet}} {{endpoint}}") from None
+        raise MissionError(f"robot command {template!r}: bad placeholder {exc}; use {{id}} (or {{ids}} for a pool) "
+                           "{fleet} {endpoint}") from None
     return shlex.split(text)
 
 
-def start_robot(template: str, robot: int, fleet: str, endpoint: str, log: Path | None = None) -> subprocess.Popen:
+def start_robot(template: str, robot: int | list[int], fleet: str, endpoint: str,
+                log: Path | None = None) -> subprocess.Popen:
     argv = robot_command(template, robot, fleet, endpoint)
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH", "")]))

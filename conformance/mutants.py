@@ -174,6 +174,12 @@ def _robot_patches() -> dict[str, Patch]:
         self._seq[rid] = 0
         pool_put(self, rid, key, msg)
 
+    ask_world = RobotPool._ask_world
+
+    def first_robot_only(self, k, steps):
+        first = min(steps)
+        return ask_world(self, k, {first: steps[first]})
+
     def ignore_sigterm(self):
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
@@ -213,9 +219,10 @@ def _robot_patches() -> dict[str, Patch]:
         "R27": setattr_(RobotMachine, "classify", execute_all),
         "R28": setattr_(RobotMachine, "classify", drop_gaps),
         "R29": setattr_(RobotPool, "_put", seq_stays),
-        "R30": setattr_(RobotPool, "_on_end", lambda self, key, payload: None),
-        "R31": setattr_(agent.Lifecycle, "stop_on_signals", ignore_sigterm),
-        "R32": setattr_(RobotPool, "_on_uav", lambda self, key, alive: None),
+        "R30": setattr_(RobotPool, "_ask_world", first_robot_only),
+        "R31": setattr_(RobotPool, "_on_end", lambda self, key, payload: None),
+        "R32": setattr_(agent.Lifecycle, "stop_on_signals", ignore_sigterm),
+        "R33": setattr_(RobotPool, "_on_uav", lambda self, key, alive: None),
     }
 
 

@@ -109,10 +109,13 @@ RULES: tuple[Rule, ...] = (
     _r(29, M, "numbers its messages (acks, states, `Done`, move requests) with one counter from 1, one more per "
               "message; `MoveBatch` queries with a counter of their own", ("test_sequence_numbers_count_by_one_from_1",),
        "never increments `seq`"),
-    _r(30, E, "exits (code 0) within 5 s of `MissionEnd`, withdrawing its token", ("test_exits_on_mission_end",),
+    _r(30, P, "a pool (one process hosting several robots) keeps each robot's rules: one move a tick per robot "
+              "(in one `MoveBatch` or a `MoveRequest` each), states on each robot's key, each robot's own `seq` "
+              "counter", ("test_a_pool_keeps_each_robots_contract",), "a pool asks only its first robot's move"),
+    _r(31, E, "exits (code 0) within 5 s of `MissionEnd`, withdrawing its token", ("test_exits_on_mission_end",),
        "ignores `MissionEnd`"),
-    _r(31, E, "exits within 5 s of SIGTERM", ("test_exits_on_sigterm",), "ignores SIGTERM"),
-    _r(32, E, "exits within 5 s when `alive/uav` disappears after having been seen",
+    _r(32, E, "exits within 5 s of SIGTERM", ("test_exits_on_sigterm",), "ignores SIGTERM"),
+    _r(33, E, "exits within 5 s when `alive/uav` disappears after having been seen",
        ("test_exits_when_the_uav_goes_away",), "ignores the UAV's token"),
     # ------------------------------------------------------------ UAVs
     _u(1, S, "declares `alive/uav` before it sends any plan and withdraws it when it exits",

@@ -16,6 +16,7 @@ from protocol.messages import Plan, Tick, encode
 
 EXIT_S = 5.0
 QUIET_S = 0.5  # how long "nothing more arrives" is watched for
+MOVE_TIMEOUT_S = 5.0  # docs/protocol.md, QoS: a robot waits this long for the world's answer to a move
 
 
 def _path_at(path, k):
@@ -302,12 +303,14 @@ def test_states_name_the_plan_held(robot, uav, world, rid, timeout):
         f"states name plans {[s.plan_id for s in states + [st2]]!r}"
 
 
-def test_no_answer_from_the_world_is_an_error_state(robot, uav, world, rid, timeout):
-    world.answer = False
+@pytest.mark.parametrize("answer", ["none", "garbage"])
+def test_no_answer_from_the_world_is_an_error_state(robot, uav, world, rid, timeout, answer):
+    """docs/protocol.md: a robot treats a garbage move result as no answer."""
+    world.answer, world.garbage = answer != "none", answer == "garbage"
     path = [(2, 2), (3, 2)]
     _accepted(uav, rid, "p-silent-world", path, timeout)
     uav.tick(1, 1, "p-silent-world")
-    st = uav.state_at(rid, 1, timeout + 5.0)   # the robot may wait its move timeout (5 s)
+    st = uav.state_at(rid, 1, max(timeout, MOVE_TIMEOUT_S + 1.0))   # the robot may wait its move timeout
     assert st is not None, "no RobotState when the world did not answer the move"
     assert st.status == "error" and st.error, f"status {st.status!r} error {st.error!r}"
     assert tuple(st.cell) == (2, 2), f"an error state must name the last known cell (2, 2), not {st.cell}"
@@ -346,7 +349,7 @@ def test_sequence_numbers_count_by_one_from_1(robot, uav, world, rid, timeout):
     assert uav.until(lambda: bool(uav.dones.get(rid)), timeout), "no Done at the goal"
     time.sleep(QUIET_S)
     per_key = {"PlanAck": [m.seq for m in uav.acks[rid]], "RobotState": [m.seq for m in uav.states[rid]],
-               "Done": [m.seq for m in uav.dones[rid]], "MoveRequest": list(world.request_seqs)}
+               "Done": [m.seq for m in uav.dones[rid]], "MoveRequest": [q for r, q in world.request_seqs if r == rid]}
     for kind, seqs in per_key.items():
         assert all(a < b for a, b in zip(seqs, seqs[1:])), f"{kind} seq not increasing: {seqs}"
     mine = sorted(s for seqs in per_key.values() for s in seqs)
@@ -354,3 +357,33 @@ def test_sequence_numbers_count_by_one_from_1(robot, uav, world, rid, timeout):
         f"a robot numbers its messages 1, 2, 3, ... with one counter; got {per_key}"
     batches = list(world.batch_seqs)
     assert batches == list(range(1, len(batches) + 1)), f"MoveBatch seq {batches}, expected 1, 2, 3, ..."
+
+
+# ---------------------------------------------------------------- pools
+def test_a_pool_keeps_each_robots_contract(spawn, pool_cmd, uav, world, rid, timeout):
+    """A process hosting several robots: each acks, moves once a tick and reports on its own keys and counter."""
+    ids = [rid, rid + 1]
+    paths = {rid: [(2, 2), (3, 2), (3, 3)], rid + 1: [(6, 6), (6, 5), (6, 5)]}
+    proc = spawn(pool_cmd, ids)
+    assert uav.until(lambda: set(ids) <= uav.alive or proc.poll() is not None, timeout), \
+        f"the pool declared tokens {sorted(uav.alive)}, expected {ids}"
+    for r in ids:
+        _accepted(uav, r, "p-pool", paths[r], timeout)   # one plan_id for the fleet, as the UAV sends
+    for k in (1, 2):
+        uav.tick(k, 2, "p-pool")
+        for r in ids:
+            assert uav.state_at(r, k, timeout) is not None, f"robot {r}: no RobotState for tick {k}"
+    for r in ids:
+        for k in (1, 2):
+            reqs = world.requests_for(r, k)
+            assert len(reqs) == 1, f"robot {r}, tick {k}: {len(reqs)} moves asked, expected one"
+            assert (tuple(reqs[0].frm), tuple(reqs[0].to)) == (paths[r][k - 1], paths[r][k]), \
+                f"robot {r}, tick {k}: asked {reqs[0].frm} -> {reqs[0].to}"
+            assert tuple(uav.state_at(r, k, timeout).cell) == paths[r][k]
+    time.sleep(QUIET_S)
+    assert not uav.garbage, uav.garbage[:3]
+    for r in ids:
+        mine = sorted([m.seq for m in uav.acks[r] + uav.states[r]] + [q for x, q in world.request_seqs if x == r])
+        assert mine == list(range(1, len(mine) + 1)), f"robot {r} in a pool numbers its own messages: {mine}"
+    batches = list(world.batch_seqs)
+    assert batches == list(range(1, len(batches) + 1)), f"the pool's MoveBatch seq {batches}, expected 1, 2, 3, ..."

@@ -25,7 +25,7 @@ from conformance.rules import DOC, RULES, SUITES, markdown, rules
 
 REPO = Path(__file__).resolve().parents[1]
 PY = shlex.quote(sys.executable)
-ROBOT_ARGS = "--id {id} --fleet {fleet} --connect {endpoint}"
+ROBOT_ARGS = "--fleet {fleet} --connect {endpoint}"
 UAV_ARGS = ("--fleet {fleet} --connect {endpoint} --mavlink udpin://127.0.0.1:{mavlink_port} "
             "--robots {robots} --tick-timeout {tick_timeout}")
 # A robot that never comes alive or never answers fails after this, not after the default 10 s.
@@ -44,9 +44,11 @@ class Verdict:
 
 
 def _command(side: str, rule: str) -> tuple[str, ...]:
-    args = ROBOT_ARGS if side == "robot" else UAV_ARGS
-    impl = f"{PY} -m conformance.mutants {side} --break {rule} {args}"
-    return (f"--{side}-cmd", impl, *(ROBOT_OPTS if side == "robot" else ()))
+    impl = f"{PY} -m conformance.mutants {side} --break {rule}"
+    if side == "uav":
+        return ("--uav-cmd", f"{impl} {UAV_ARGS}")
+    return ("--robot-cmd", f"{impl} --id {{id}} {ROBOT_ARGS}", "--robot-pool-cmd", f"{impl} --ids {{ids}} {ROBOT_ARGS}",
+            *ROBOT_OPTS)
 
 
 def _suite(side: str, rule: str, tests: tuple[str, ...]) -> Verdict:
