@@ -31,7 +31,14 @@ def conformance_command(args: argparse.Namespace) -> int:
     import conformance
     from conformance.rules import text_table
 
-    if args.list_rules:
+    # Options after KIND land in pytest_args (argparse.REMAINDER takes all that follows a positional):
+    # take ours back from there.
+    pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    pre.add_argument("--cmd", default=None)
+    pre.add_argument("--list-rules", action="store_true")
+    late, rest = pre.parse_known_args(args.pytest_args)
+    cmd, list_rules = late.cmd or args.cmd, late.list_rules or args.list_rules
+    if list_rules:
         print(text_table(args.kind))
         return 0
     if args.kind is None:
@@ -40,6 +47,6 @@ def conformance_command(args: argparse.Namespace) -> int:
     suite, option = SUITES[args.kind]
     path = Path(conformance.__file__).resolve().parent / suite
     argv = [sys.executable, "-m", "pytest", str(path), "-q", "-p", "no:cacheprovider",
-            *([option, args.cmd] if args.cmd else []), *args.pytest_args]
+            *([option, cmd] if cmd else []), *rest]
     # pytest's own exit code: 0 all rules kept, 1 a rule broken, 2-4 usage problems.
     return subprocess.run(argv, stdin=subprocess.DEVNULL).returncode
