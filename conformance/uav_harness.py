@@ -200,6 +200,7 @@ class Observed:
     plans: list[tuple[float, int, Plan, bool]] = field(default_factory=list)  # time, key's robot, plan, token up
     ticks: list[tuple[float, Tick]] = field(default_factory=list)
     statuses: list[MissionStatus] = field(default_factory=list)
+    first_status: float | None = None                                   # when the UAV's first status came
     ends: list[tuple[float, MissionEnd]] = field(default_factory=list)
     uav_alive: list[tuple[float, bool]] = field(default_factory=list)
     seqs: list[tuple[str, int]] = field(default_factory=list)          # (kind, seq) of every UAV message
@@ -358,6 +359,8 @@ class FakeFleet(Waiter):
         if status is not None:
             with self.cv:
                 self.log.statuses.append(status)
+                if self.log.first_status is None:
+                    self.log.first_status = time.monotonic()
                 self.cv.notify_all()
 
     def _on_uav(self, _key: str, alive: bool) -> None:
@@ -563,9 +566,10 @@ def _drive(proc: subprocess.Popen, fleet: FakeFleet, behaviour: Misbehaviour, de
         # usually sent its plans by then, and one that waits (before perceiving, or before dispatching)
         # is kept waiting.
         def due() -> bool:
-            ups = [t for t, alive in fleet.log.uav_alive if alive]
+            # The UAV is up when its token is, or (a UAV without a token) when it first speaks.
+            ups = [t for t, alive in fleet.log.uav_alive if alive] + [t for t in [fleet.log.first_status] if t]
             return (fleet.dispatching() or proc.poll() is not None
-                    or (bool(ups) and time.monotonic() >= ups[0] + late_join_s))
+                    or (bool(ups) and time.monotonic() >= min(ups) + late_join_s))
         fleet.until(due, max(0.0, deadline - time.monotonic()))
         if fleet.dispatching():
             time.sleep(0.5)  # the window in which a UAV that does not wait would send the late robots' plans
