@@ -29,6 +29,11 @@ def _replace(msg, **changes):
     return dataclasses.replace(msg, **changes)
 
 
+def setattr_(owner: object, name: str, value: object) -> Patch:
+    """The patch that sets `owner.name` to `value`."""
+    return lambda: setattr(owner, name, value)
+
+
 # ---------------------------------------------------------------- robots
 def _robot_patches() -> dict[str, Patch]:
     from protocol.transport import Handle
@@ -183,9 +188,6 @@ def _robot_patches() -> dict[str, Patch]:
     def ignore_sigterm(self):
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
-    def setattr_(owner, name, value) -> Patch:
-        return lambda: setattr(owner, name, value)
-
     return {
         "R1": setattr_(RobotPool, "start", no_token),
         "R2": setattr_(RobotPool, "start", token_first),
@@ -259,14 +261,10 @@ def _uav_patches() -> dict[str, Patch]:
                 robot=rid, plan_id=plan.plan_id, path=[(0, 0)], goal=(0, 0), seq=self._next())))
         return dispatch(self, plan, first)
 
-    def plan_with(**change: Callable[[dict], object]):
+    def made_with(cls, **change: Callable[[dict], object]):
+        """A stand-in for message class `cls` in the mission module that changes the fields it is built with."""
         def make(**kw):
-            return Plan(**{**kw, **{k: f(kw) for k, f in change.items()}})
-        return make
-
-    def tick_with(**change: Callable[[dict], object]):
-        def make(**kw):
-            return Tick(**{**kw, **{k: f(kw) for k, f in change.items()}})
+            return cls(**{**kw, **{k: f(kw) for k, f in change.items()}})
         return make
 
     plan_plain = pipeline.plan_mission
@@ -312,27 +310,24 @@ def _uav_patches() -> dict[str, Patch]:
     def believe(self):
         self.verified = {r: r in self.fleet.done for r in self.ids}
 
-    def setattr_(owner, name, value) -> Patch:
-        return lambda: setattr(owner, name, value)
-
     def both(*patches: Patch) -> Patch:
         return lambda: [p() for p in patches] and None
 
     return {
         "U1": setattr_(mission, "_transport", no_uav_token),
         "U2": setattr_(Mission, "_dispatch", plan_to_a_stranger),
-        "U3": setattr_(mission, "Plan", plan_with(goal=lambda kw: tuple(kw["path"][0]))),
+        "U3": setattr_(mission, "Plan", made_with(Plan, goal=lambda kw: tuple(kw["path"][0]))),
         "U4": conflicting,
         "U5": setattr_(FleetLink, "wait_until", skip_ack_wait),
-        "U6": setattr_(mission, "Tick", tick_with(k=lambda kw: kw["k"] + 1)),
-        "U7": setattr_(mission, "Tick", tick_with(ticks=lambda kw: kw["ticks"] + 1)),
+        "U6": setattr_(mission, "Tick", made_with(Tick, k=lambda kw: kw["k"] + 1)),
+        "U7": setattr_(mission, "Tick", made_with(Tick, ticks=lambda kw: kw["ticks"] + 1)),
         "U8": both(setattr_(FleetLink, "wait_tick", lambda self, robots, k, timeout, interrupt: {}),
                    setattr_(Mission, "_recover", lambda self, k, faults: None)),
         "U9": setattr_(Mission, "_next", lambda self: 1),
         "U10": setattr_(Mission, "_end", end_twice),
         "U11": setattr_(Flight, "land", lambda self, timeout_s=120.0: None),
         "U12": setattr_(FleetLink, "_decode", refusal_is_ack),
-        "U13": setattr_(mission, "Plan", plan_with(start_tick=lambda kw: 0)),
+        "U13": setattr_(mission, "Plan", made_with(Plan, start_tick=lambda kw: 0)),
         "U14": both(setattr_(Mission, "_verify", believe), setattr_(Mission, "_off_goal", lambda self: [])),
         "U15": setattr_(FleetLink, "_decode", any_robot),
         "U16": setattr_(mission, "PLAN_RESEND_S", 6.0),
