@@ -28,6 +28,7 @@ from protocol.transport import Handle, IncomingQuery, Transport, ZenohTransport
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_ROBOT_CMD = f"{shlex.quote(sys.executable)} -m robot_agents --id {{id}} --fleet {{fleet}} --connect {{endpoint}}"
+DEFAULT_POOL_CMD = f"{shlex.quote(sys.executable)} -m robot_agents --ids {{ids}} --fleet {{fleet}} --connect {{endpoint}}"
 
 
 def free_endpoint() -> str:
@@ -136,9 +137,10 @@ class FakeUav(Waiter):
         return self.seq
 
     def plan(self, robot: int, plan_id: str, path: list[tuple[int, int]], goal: tuple[int, int] | None = None,
-             for_robot: int | None = None, start_tick: int = 0) -> None:
+             for_robot: int | None = None, start_tick: int = 0, connectivity: int = 0) -> None:
         msg = Plan(robot=robot if for_robot is None else for_robot, plan_id=plan_id, path=list(path),
-                   goal=goal if goal is not None else path[-1], start_tick=start_tick, seq=self._next())
+                   goal=goal if goal is not None else path[-1], start_tick=start_tick, connectivity=connectivity,
+                   seq=self._next())
         self.transport.put(self.keys.plan(robot), encode(msg))
 
     def tick(self, k: int, ticks: int, plan_id: str) -> None:
@@ -160,6 +162,14 @@ class FakeUav(Waiter):
         if not self.until(found, timeout):
             return None
         return next(a for a in self.acks[robot] if a.plan_id == plan_id)
+
+    def acks_for(self, robot: int, plan_id: str, count: int, timeout: float) -> list[PlanAck]:
+        """The first `count` acks for `plan_id` (fewer if they do not come within `timeout`)."""
+        def of() -> list[PlanAck]:
+            return [a for a in self.acks.get(robot, []) if a.plan_id == plan_id]
+        self.until(lambda: len(of()) >= count, timeout)
+        with self.cv:
+            return of()[:count]
 
     def state_at(self, robot: int, k: int, timeout: float) -> RobotState | None:
         def found() -> bool:
@@ -185,8 +195,11 @@ class FakeWorld(Waiter):
     keys: Keys
     refuse: set[tuple[int, int]] = field(default_factory=set)
     requests: list[MoveRequest] = field(default_factory=list)
+    request_seqs: list[tuple[int, int]] = field(default_factory=list)  # (robot, seq) of each MoveRequest
+    batch_seqs: list[int] = field(default_factory=list)     # of each MoveBatch, in arrival order
     positions: dict[int, tuple[int, int]] = field(default_factory=dict)
     answer: bool = True
+    garbage: bool = False      # answer with bytes that do not decode
 
     def __post_init__(self) -> None:
         Waiter.__init__(self)
@@ -196,13 +209,18 @@ class FakeWorld(Waiter):
     def _on_move(self, q: IncomingQuery) -> None:
         if b'"MoveBatch"' in q.payload[:200]:
             batch = decode(q.payload, MoveBatch)
+            with self.cv:
+                self.batch_seqs.append(batch.seq)
             results = [self._judge(MoveRequest(robot=r, tick=batch.tick, frm=a, to=b)) for r, a, b in batch.moves]
             reply = encode(MoveBatchResult(tick=batch.tick, results=[
                 (res.robot, res.accepted, res.cell, res.reason) for res in results]))
         else:
-            reply = encode(self._judge(decode(q.payload, MoveRequest)))
+            req = decode(q.payload, MoveRequest)
+            with self.cv:
+                self.request_seqs.append((req.robot, req.seq))
+            reply = encode(self._judge(req))
         if self.answer:
-            q.reply(reply)
+            q.reply(b'{"type":"MoveResult","v":1,"robot":"seven"}' if self.garbage else reply)
         else:
             q.finish()
 
@@ -226,15 +244,19 @@ class FakeWorld(Waiter):
         self._handle.close()
 
 
-def robot_command(template: str, robot: int, fleet: str, endpoint: str) -> list[str]:
+def robot_command(template: str, robot: int | list[int], fleet: str, endpoint: str) -> list[str]:
+    """The command line from a template: {id} for one robot; {ids} (comma-separated) for a pool."""
+    ids = robot if isinstance(robot, list) else [robot]
     try:
-        text = template.format(id=robot, fleet=fleet, endpoint=endpoint)
+        text = template.format(id=ids[0], ids=",".join(map(str, ids)), fleet=fleet, endpoint=endpoint)
     except (KeyError, IndexError, ValueError) as exc:
-        raise MissionError(f"--robot-cmd {template!r}: bad placeholder {exc}; use {{id}} {{fleet}} {{endpoint}}") from None
+        raise MissionError(f"robot command {template!r}: bad placeholder {exc}; use {{id}} (or {{ids}} for a pool) "
+                           "{fleet} {endpoint}") from None
     return shlex.split(text)
 
 
-def start_robot(template: str, robot: int, fleet: str, endpoint: str, log: Path | None = None) -> subprocess.Popen:
+def start_robot(template: str, robot: int | list[int], fleet: str, endpoint: str,
+                log: Path | None = None) -> subprocess.Popen:
     argv = robot_command(template, robot, fleet, endpoint)
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH", "")]))

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import pytest
 
-from conformance import DEFAULT_ROBOT_CMD, FakeUav, FakeWorld, Hub, start_robot, stop_process
+from conformance import DEFAULT_POOL_CMD, DEFAULT_ROBOT_CMD, FakeUav, FakeWorld, Hub, start_robot, stop_process
 from conformance.uav_harness import DEFAULT_UAV_CMD, PLACEHOLDERS, UavOptions, uav_command
 from protocol.errors import MissionError
 
@@ -18,6 +18,9 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     group = parser.getgroup("uav-robots conformance")
     group.addoption("--robot-cmd", default=DEFAULT_ROBOT_CMD,
                     help="command line of the robot under test; placeholders {id} {fleet} {endpoint}")
+    group.addoption("--robot-pool-cmd", default=None,
+                    help="command line of a pool hosting several robots; placeholders {ids} (comma-separated) "
+                         "{fleet} {endpoint} (default: our pool when --robot-cmd is ours; else the pool test is skipped)")
     group.addoption("--robot-id", type=int, default=7, help="the robot id to start it with")
     group.addoption("--robot-timeout", type=float, default=10.0,
                     help="seconds a robot gets to come alive (and to answer anything)")
@@ -40,6 +43,16 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 @pytest.fixture
 def robot_cmd(request: pytest.FixtureRequest) -> str:
     return request.config.getoption("--robot-cmd")
+
+
+@pytest.fixture
+def pool_cmd(request: pytest.FixtureRequest) -> str:
+    cmd = request.config.getoption("--robot-pool-cmd")
+    if cmd is None and request.config.getoption("--robot-cmd") == DEFAULT_ROBOT_CMD:
+        cmd = DEFAULT_POOL_CMD
+    if not cmd:
+        pytest.skip("no --robot-pool-cmd given: the implementation is checked as a single robot only")
+    return cmd
 
 
 @pytest.fixture
@@ -77,8 +90,9 @@ def spawn(hub, robot_cmd, rid, tmp_path):
     """Start the robot under test; always stopped (and killed if need be) afterwards."""
     procs = []
 
-    def start():
-        proc = start_robot(robot_cmd, rid, hub.fleet, hub.endpoint, tmp_path / f"robot-{len(procs)}.log")
+    def start(template: str | None = None, ids: list[int] | None = None):
+        proc = start_robot(template or robot_cmd, ids or rid, hub.fleet, hub.endpoint,
+                           tmp_path / f"robot-{len(procs)}.log")
         procs.append(proc)
         return proc
 

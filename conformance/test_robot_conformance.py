@@ -9,11 +9,14 @@ from __future__ import annotations
 import signal
 import time
 
+import pytest
+
 from conformance import signal_group
 from protocol.messages import Plan, Tick, encode
 
 EXIT_S = 5.0
 QUIET_S = 0.5  # how long "nothing more arrives" is watched for
+MOVE_TIMEOUT_S = 5.0  # docs/protocol.md, QoS: a robot waits this long for the world's answer to a move
 
 
 def _path_at(path, k):
@@ -50,19 +53,27 @@ def test_valid_plan_is_acknowledged(robot, uav, rid, timeout):
     assert ack.robot == rid and ack.plan_id == "p-valid" and ack.error == ""
 
 
-def test_malformed_plans_are_refused(robot, uav, rid, timeout):
-    bad = {
-        "p-jump": dict(path=[(2, 2), (4, 2)]),
-        "p-goal": dict(path=[(2, 2), (3, 2)], goal=(5, 5)),
-        "p-empty": dict(path=[], goal=(2, 2)),
-        "p-other": dict(path=[(2, 2), (3, 2)], for_robot=rid + 1),
-    }
-    for pid, kw in bad.items():
-        uav.plan(rid, pid, **kw)
-        ack = uav.ack_for(rid, pid, timeout)
-        assert ack is not None, f"no PlanAck for malformed plan {pid}"
-        assert not ack.ok and ack.error, f"malformed plan {pid} was accepted"
-        assert ack.robot == rid
+MALFORMED = {  # docs/protocol.md, Plans and ticks: what a robot refuses with ok: false and a one-line error
+    "jump": dict(path=[(2, 2), (4, 2)]),
+    "diagonal-under-4": dict(path=[(2, 2), (3, 3)], connectivity=4),
+    "goal": dict(path=[(2, 2), (3, 2)], goal=(5, 5)),
+    "empty": dict(path=[], goal=(2, 2)),
+    "other-robot": dict(path=[(2, 2), (3, 2)], for_robot="next"),
+}
+
+
+@pytest.mark.parametrize("case", list(MALFORMED))
+def test_a_malformed_plan_is_refused(robot, uav, rid, timeout, case):
+    kw = dict(MALFORMED[case])
+    if kw.get("for_robot") == "next":
+        kw["for_robot"] = rid + 1
+    pid = f"p-{case}"
+    uav.plan(rid, pid, **kw)
+    ack = uav.ack_for(rid, pid, timeout)
+    assert ack is not None, f"no PlanAck for malformed plan {pid}"
+    assert not ack.ok, f"malformed plan {pid} was accepted"
+    assert ack.error and "\n" not in ack.error, f"a refusal needs a one-line error, got {ack.error!r}"
+    assert ack.robot == rid
     _accepted(uav, rid, "p-good", [(2, 2), (3, 2)], timeout)
     assert robot.poll() is None
 
@@ -77,7 +88,8 @@ def test_ticks_follow_the_plan_and_done_is_raised_once(robot, uav, world, rid, t
         assert len(reqs) == 1, f"tick {k}: {len(reqs)} move requests, expected exactly one"
         assert (tuple(reqs[0].frm), tuple(reqs[0].to)) == (_path_at(path, k - 1), _path_at(path, k)), \
             f"tick {k}: asked {reqs[0].frm} -> {reqs[0].to}"
-        assert st.robot == rid and st.tick == k and tuple(st.cell) == _path_at(path, k)
+        assert st.robot == rid and st.tick == k and tuple(st.cell) == _path_at(path, k), \
+            f"tick {k}: state {st.tick} at {st.cell}, expected {_path_at(path, k)}"
     assert uav.until(lambda: len(uav.dones.get(rid, [])) >= 1, timeout), "no Done at the goal"
     time.sleep(QUIET_S)
     dones = uav.dones[rid]
@@ -203,3 +215,175 @@ def test_a_repair_plan_for_a_past_tick_is_refused(robot, uav, world, rid, timeou
     uav.plan(rid, "p-past", [(4, 2), (4, 3)], start_tick=1)
     ack = uav.ack_for(rid, "p-past", timeout)
     assert ack is not None and not ack.ok, "a plan starting before the last executed tick was accepted"
+
+
+# ---------------------------------------------------------------- plans: ids, starts, connectivity
+def test_messages_name_the_robot_of_their_key(robot, uav, world, rid, timeout):
+    path = [(2, 2), (3, 2)]
+    _accepted(uav, rid, "p-keys", path, timeout)
+    _run_ticks(uav, world, rid, "p-keys", path, 2, timeout)
+    uav.until(lambda: bool(uav.dones.get(rid)), timeout)
+    time.sleep(QUIET_S)
+    assert not uav.garbage, f"messages on robot {rid}'s keys that name another robot or do not decode: {uav.garbage[:3]}"
+    for msg in uav.acks[rid] + uav.states[rid] + uav.dones.get(rid, []):
+        assert msg.robot == rid, f"{type(msg).__name__} on robot {rid}'s key names robot {msg.robot}"
+
+
+def test_a_plan_not_starting_where_the_robot_stands_is_refused(robot, uav, world, rid, timeout):
+    path = [(2, 2), (3, 2), (4, 2)]
+    _accepted(uav, rid, "p-first", path, timeout)
+    _run_ticks(uav, world, rid, "p-first", path, 1, timeout)         # it stands on (3, 2)
+    uav.plan(rid, "p-elsewhere", [(6, 6), (6, 7)])
+    ack = uav.ack_for(rid, "p-elsewhere", timeout)
+    assert ack is not None, "no PlanAck for a plan that starts elsewhere"
+    assert not ack.ok, "a plan that does not start where the robot stands was accepted"
+    _accepted(uav, rid, "p-from-here", [(3, 2), (3, 3)], timeout)   # a replan from here is fine
+    uav.tick(2, 2, "p-from-here")
+    assert uav.state_at(rid, 2, timeout) is not None
+    (req,) = world.requests_for(rid, 2)
+    assert (tuple(req.frm), tuple(req.to)) == ((3, 2), (3, 3)), f"tick 2: asked {req.frm} -> {req.to}"
+
+
+def test_diagonal_steps_are_moves_when_the_plan_says_8(robot, uav, world, rid, timeout):
+    path = [(2, 2), (3, 3), (4, 4), (4, 4)]
+    uav.plan(rid, "p-diagonal", path, connectivity=8)
+    ack = uav.ack_for(rid, "p-diagonal", timeout)
+    assert ack is not None, "no PlanAck for an 8-connected plan"
+    assert ack.ok, f"a plan with connectivity 8 and diagonal steps was refused: {ack.error}"
+    states = _run_ticks(uav, world, rid, "p-diagonal", path, 2, timeout)
+    for k, st in enumerate(states, 1):
+        (req,) = world.requests_for(rid, k)
+        assert (tuple(req.frm), tuple(req.to)) == (path[k - 1], path[k]), f"tick {k}: asked {req.frm} -> {req.to}"
+        assert tuple(st.cell) == path[k]
+
+
+def test_a_resent_plan_is_acknowledged_again(robot, uav, rid, timeout):
+    path = [(2, 2), (3, 2)]
+    _accepted(uav, rid, "p-resent", path, timeout)
+    uav.plan(rid, "p-resent", path)      # the UAV heard no ack within 2 s and puts it again
+    acks = uav.acks_for(rid, "p-resent", 2, timeout)
+    assert len(acks) == 2, "a plan resent with the same plan_id was not acknowledged again"
+    assert acks[1].ok, f"a resent plan was refused: {acks[1].error}"
+
+
+def test_another_path_under_the_same_plan_id_is_refused(robot, uav, world, rid, timeout):
+    first = [(2, 2), (3, 2)]
+    _accepted(uav, rid, "p-same", first, timeout)
+    uav.plan(rid, "p-same", [(2, 2), (2, 3)])
+    acks = uav.acks_for(rid, "p-same", 2, timeout)
+    assert len(acks) == 2, "no PlanAck for another path under a plan_id already held"
+    assert not acks[1].ok and acks[1].error, "another path under the same plan_id was accepted"
+    _run_ticks(uav, world, rid, "p-same", first, 1, timeout)
+    (req,) = world.requests_for(rid, 1)
+    assert tuple(req.to) == (3, 2), "the robot left the plan it had acknowledged"
+
+
+# ---------------------------------------------------------------- states
+def test_states_only_for_executed_ticks(robot, uav, world, rid, timeout):
+    path = [(2, 2), (3, 2), (4, 2), (5, 2)]
+    _accepted(uav, rid, "p-states", path, timeout)
+    time.sleep(QUIET_S)
+    assert not uav.states.get(rid), f"states before the first tick: {uav.states.get(rid)}"
+    _run_ticks(uav, world, rid, "p-states", path, 2, timeout)
+    time.sleep(QUIET_S)
+    states = uav.states[rid]
+    assert [s.tick for s in states] == [1, 2], f"states for ticks {[s.tick for s in states]}, expected [1, 2]"
+    assert [s.status for s in states] == ["stepping", "stepping"], [s.status for s in states]
+
+
+def test_states_name_the_plan_held(robot, uav, world, rid, timeout):
+    path = [(2, 2), (3, 2), (4, 2)]
+    _accepted(uav, rid, "p-named", path, timeout)
+    states = _run_ticks(uav, world, rid, "p-named", path, 1, timeout)
+    _accepted(uav, rid, "p-renamed", [(3, 2), (3, 3)], timeout)
+    uav.tick(2, 2, "p-renamed")
+    st2 = uav.state_at(rid, 2, timeout)
+    assert st2 is not None, "no RobotState for tick 2"
+    assert [s.plan_id for s in states + [st2]] == ["p-named", "p-renamed"], \
+        f"states name plans {[s.plan_id for s in states + [st2]]!r}"
+
+
+@pytest.mark.parametrize("answer", ["none", "garbage"])
+def test_no_answer_from_the_world_is_an_error_state(robot, uav, world, rid, timeout, answer):
+    """docs/protocol.md: a robot treats a garbage move result as no answer."""
+    world.answer, world.garbage = answer != "none", answer == "garbage"
+    path = [(2, 2), (3, 2)]
+    _accepted(uav, rid, "p-silent-world", path, timeout)
+    uav.tick(1, 1, "p-silent-world")
+    st = uav.state_at(rid, 1, max(timeout, MOVE_TIMEOUT_S + 1.0))   # the robot may wait its move timeout
+    assert st is not None, "no RobotState when the world did not answer the move"
+    assert st.status == "error" and st.error, f"status {st.status!r} error {st.error!r}"
+    assert tuple(st.cell) == (2, 2), f"an error state must name the last known cell (2, 2), not {st.cell}"
+
+
+# ---------------------------------------------------------------- ticks
+def test_a_tick_for_another_plan_makes_the_robot_stay(robot, uav, world, rid, timeout):
+    path = [(2, 2), (3, 2), (4, 2)]
+    _accepted(uav, rid, "p-mine", path, timeout)
+    _run_ticks(uav, world, rid, "p-mine", path, 1, timeout)
+    uav.tick(2, 2, "p-someone-elses")
+    st = uav.state_at(rid, 2, timeout)
+    assert st is not None, "no RobotState for a tick naming another plan"
+    (req,) = world.requests_for(rid, 2)
+    assert tuple(req.frm) == tuple(req.to) == (3, 2), f"a tick for another plan must make it stay: {req.frm} -> {req.to}"
+    assert tuple(st.cell) == (3, 2)
+
+
+def test_a_tick_gap_is_executed_from_where_the_robot_stands(robot, uav, world, rid, timeout):
+    path = [(2, 2), (3, 2), (3, 2), (4, 2), (4, 3)]
+    _accepted(uav, rid, "p-gap", path, timeout)
+    _run_ticks(uav, world, rid, "p-gap", path, 1, timeout)
+    uav.tick(3, 4, "p-gap")               # tick 2 was lost
+    st = uav.state_at(rid, 3, timeout)
+    assert st is not None, "no RobotState for the tick after a gap"
+    assert not world.requests_for(rid, 2)
+    (req,) = world.requests_for(rid, 3)
+    assert (tuple(req.frm), tuple(req.to)) == ((3, 2), (4, 2)), f"tick 3 after a gap: asked {req.frm} -> {req.to}"
+    assert tuple(st.cell) == (4, 2)
+
+
+def test_sequence_numbers_count_by_one_from_1(robot, uav, world, rid, timeout):
+    path = [(2, 2), (3, 2), (3, 3)]
+    _accepted(uav, rid, "p-seq", path, timeout)
+    _run_ticks(uav, world, rid, "p-seq", path, 3, timeout)
+    assert uav.until(lambda: bool(uav.dones.get(rid)), timeout), "no Done at the goal"
+    time.sleep(QUIET_S)
+    per_key = {"PlanAck": [m.seq for m in uav.acks[rid]], "RobotState": [m.seq for m in uav.states[rid]],
+               "Done": [m.seq for m in uav.dones[rid]], "MoveRequest": [q for r, q in world.request_seqs if r == rid]}
+    for kind, seqs in per_key.items():
+        assert all(a < b for a, b in zip(seqs, seqs[1:])), f"{kind} seq not increasing: {seqs}"
+    mine = sorted(s for seqs in per_key.values() for s in seqs)
+    assert mine == list(range(1, len(mine) + 1)), \
+        f"a robot numbers its messages 1, 2, 3, ... with one counter; got {per_key}"
+    batches = list(world.batch_seqs)
+    assert batches == list(range(1, len(batches) + 1)), f"MoveBatch seq {batches}, expected 1, 2, 3, ..."
+
+
+# ---------------------------------------------------------------- pools
+def test_a_pool_keeps_each_robots_contract(spawn, pool_cmd, uav, world, rid, timeout):
+    """A process hosting several robots: each acks, moves once a tick and reports on its own keys and counter."""
+    ids = [rid, rid + 1]
+    paths = {rid: [(2, 2), (3, 2), (3, 3)], rid + 1: [(6, 6), (6, 5), (6, 5)]}
+    proc = spawn(pool_cmd, ids)
+    assert uav.until(lambda: set(ids) <= uav.alive or proc.poll() is not None, timeout), \
+        f"the pool declared tokens {sorted(uav.alive)}, expected {ids}"
+    for r in ids:
+        _accepted(uav, r, "p-pool", paths[r], timeout)   # one plan_id for the fleet, as the UAV sends
+    for k in (1, 2):
+        uav.tick(k, 2, "p-pool")
+        for r in ids:
+            assert uav.state_at(r, k, timeout) is not None, f"robot {r}: no RobotState for tick {k}"
+    for r in ids:
+        for k in (1, 2):
+            reqs = world.requests_for(r, k)
+            assert len(reqs) == 1, f"robot {r}, tick {k}: {len(reqs)} moves asked, expected one"
+            assert (tuple(reqs[0].frm), tuple(reqs[0].to)) == (paths[r][k - 1], paths[r][k]), \
+                f"robot {r}, tick {k}: asked {reqs[0].frm} -> {reqs[0].to}"
+            assert tuple(uav.state_at(r, k, timeout).cell) == paths[r][k]
+    time.sleep(QUIET_S)
+    assert not uav.garbage, uav.garbage[:3]
+    for r in ids:
+        mine = sorted([m.seq for m in uav.acks[r] + uav.states[r]] + [q for x, q in world.request_seqs if x == r])
+        assert mine == list(range(1, len(mine) + 1)), f"robot {r} in a pool numbers its own messages: {mine}"
+    batches = list(world.batch_seqs)
+    assert batches == list(range(1, len(batches) + 1)), f"the pool's MoveBatch seq {batches}, expected 1, 2, 3, ..."

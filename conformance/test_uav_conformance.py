@@ -18,6 +18,10 @@ from uav_agent.planning.types import Problem
 from uav_agent.planning.validator import validate
 
 
+RESEND_S = 2.0         # the UAV puts again a plan not acknowledged within this
+RESEND_SLACK_S = 1.5   # for the transport and a loaded machine
+
+
 def _late_robot(opts) -> int:
     return opts.robots - 1
 
@@ -212,11 +216,18 @@ def test_a_done_the_camera_contradicts_is_no_success(uav_options, tmp_path):
     _no_harness_trouble(run)
 
 
-def test_garbage_on_robot_keys_is_dropped(uav_options, tmp_path):
-    noisy = uav_options.robots - 1
-    run = run_mission(uav_options, Misbehaviour(garbage=frozenset({noisy})), tmp_path)
+@pytest.fixture(scope="module")
+def noisy(uav_options, tmp_path_factory) -> MissionRun:
+    """A mission in which one robot loses its first plan and puts garbage and forged messages on its keys."""
+    rid = uav_options.robots - 1
+    return run_mission(uav_options, Misbehaviour(garbage=frozenset({rid}), deaf=frozenset({rid})),
+                       tmp_path_factory.mktemp("noisy-mission"))
+
+
+def test_garbage_on_robot_keys_is_dropped(noisy, uav_options):
+    run, rid = noisy, uav_options.robots - 1
     _exited(run, uav_options)
-    assert run.code == 0, f"garbage from robot {noisy} broke the mission (exit {run.code})\n{run.tail()}"
+    assert run.code == 0, f"garbage from robot {rid} broke the mission (exit {run.code})\n{run.tail()}"
     assert "Traceback" not in run.stderr + run.stdout
     assert not run.log.violations, run.log.violations[:3]
     assert [e.completed for _, e in run.log.ends] == [True]
@@ -225,3 +236,18 @@ def test_garbage_on_robot_keys_is_dropped(uav_options, tmp_path):
     assert set(dones) == set(run.truth.starts) and run.log.ends[0][0] > max(dones.values())
     assert run.record.collisions == 0
     _no_harness_trouble(run)
+
+
+def test_an_unacknowledged_plan_is_resent(noisy, uav_options):
+    """docs/protocol.md: the UAV puts a plan again when it is not acknowledged within 2 s."""
+    run, rid = noisy, uav_options.robots - 1
+    _exited(run, uav_options)
+    mine = [(t, p) for t, r, p, up in run.log.plans if r == rid and up]
+    assert mine, f"robot {rid} got no plan\n{run.tail()}"
+    assert len(mine) >= 2, f"robot {rid} lost its plan and the UAV never put it again\n{run.tail()}"
+    (t0, first), (t1, again) = mine[0], mine[1]
+    assert t1 - t0 <= RESEND_S + RESEND_SLACK_S, \
+        f"the plan was put again after {t1 - t0:.1f} s (at most {RESEND_S:g} s + {RESEND_SLACK_S:g} s)"
+    assert (again.plan_id, again.path, tuple(again.goal)) == (first.plan_id, first.path, tuple(first.goal)), \
+        "a resent plan must be the same plan (same plan_id and path)"
+    assert run.code == 0, f"exit {run.code}\n{run.tail()}"

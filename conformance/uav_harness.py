@@ -42,6 +42,7 @@ MOVE_TIMEOUT_S = 5.0    # the contract's robot-side move query timeout
 SETTLE_S = 2.0          # after the UAV exits: the longest wait for its last messages and token to arrive
 ABORT_SLACK_S = 10.0    # beyond the tick timeout, for a failing UAV to say so, end the mission and exit
 LATE_JOIN_S = 3.0       # after the UAV's token: when a late robot comes up, unless the UAV dispatches earlier
+FIRST_ACK_DELAY_S = 0.5  # the fleet's first ack comes this late, as a real robot's may: a UAV must wait for it
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,7 @@ class Misbehaviour:
     late: frozenset[int] = frozenset()         # declare the liveliness token only when the suite says so
     garbage: frozenset[int] = frozenset()      # also put garbage, wrong-version and forged messages on its keys
     liar: frozenset[int] = frozenset()         # raise Done on its goal as soon as it has a plan, never move or report
+    deaf: frozenset[int] = frozenset()         # ignore the first plan it receives (as if it was lost on the way)
 
 
 # ---------------------------------------------------------------- processes
@@ -198,6 +200,7 @@ class Observed:
     plans: list[tuple[float, int, Plan, bool]] = field(default_factory=list)  # time, key's robot, plan, token up
     ticks: list[tuple[float, Tick]] = field(default_factory=list)
     statuses: list[MissionStatus] = field(default_factory=list)
+    first_status: float | None = None                                   # when the UAV's first status came
     ends: list[tuple[float, MissionEnd]] = field(default_factory=list)
     uav_alive: list[tuple[float, bool]] = field(default_factory=list)
     seqs: list[tuple[str, int]] = field(default_factory=list)          # (kind, seq) of every UAV message
@@ -305,8 +308,14 @@ class FakeFleet(Waiter):
         elif not up:
             # A real robot is not listening yet: the plan is lost.
             self._violation("plan-before-token", f"plan {plan.plan_id} sent to robot {rid} before its token was up")
+        elif rid in self.behaviour.deaf and self._first_plan(rid):
+            return  # the first plan to reach it is lost: the UAV must put it again
         else:
             self._jobs.put(("plan", rid, plan))
+
+    def _first_plan(self, rid: int) -> bool:
+        with self.cv:
+            return sum(1 for _, r, _, up in self.log.plans if r == rid and up) == 1
 
     def _on_tick(self, key: str, payload: bytes) -> None:
         tick = self._decode(key, payload, Tick)
@@ -350,6 +359,8 @@ class FakeFleet(Waiter):
         if status is not None:
             with self.cv:
                 self.log.statuses.append(status)
+                if self.log.first_status is None:
+                    self.log.first_status = time.monotonic()
                 self.cv.notify_all()
 
     def _on_uav(self, _key: str, alive: bool) -> None:
@@ -399,6 +410,8 @@ class FakeFleet(Waiter):
             for payload in junk(fake, dataclasses.replace(fake, robot=other) if other is not None else None):
                 self.transport.put(self.keys.ack(rid), payload)
         ack = PlanAck(robot=rid, plan_id=plan.plan_id, ok=ok, error=error)
+        if not self.log.acks:
+            time.sleep(FIRST_ACK_DELAY_S)
         with self.cv:
             if ok and (held is None or held.plan_id != plan.plan_id):
                 robot.plan, robot.base, robot.done_for = plan, plan.start_tick or self.seen_tick, ""
@@ -553,9 +566,10 @@ def _drive(proc: subprocess.Popen, fleet: FakeFleet, behaviour: Misbehaviour, de
         # usually sent its plans by then, and one that waits (before perceiving, or before dispatching)
         # is kept waiting.
         def due() -> bool:
-            ups = [t for t, alive in fleet.log.uav_alive if alive]
+            # The UAV is up when its token is, or (a UAV without a token) when it first speaks.
+            ups = [t for t, alive in fleet.log.uav_alive if alive] + [t for t in [fleet.log.first_status] if t]
             return (fleet.dispatching() or proc.poll() is not None
-                    or (bool(ups) and time.monotonic() >= ups[0] + late_join_s))
+                    or (bool(ups) and time.monotonic() >= min(ups) + late_join_s))
         fleet.until(due, max(0.0, deadline - time.monotonic()))
         if fleet.dispatching():
             time.sleep(0.5)  # the window in which a UAV that does not wait would send the late robots' plans

@@ -52,3 +52,27 @@ def test_a_robot_that_acks_nothing_fails_the_suite(tmp_path):
     assert run.returncode == 1, run.stdout[-3000:]
     assert "1 failed, 1 passed" in run.stdout, run.stdout[-3000:]
     assert "no PlanAck" in run.stdout
+
+
+def _cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "uav_robots", "conformance", *args], cwd=REPO, capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def test_the_command_takes_cmd_after_the_kind():
+    cmd = f"{shlex.quote(sys.executable)} -m robot_agents --id {{id}} --fleet {{fleet}} --connect {{endpoint}}"
+    run = _cli("robot", "--cmd", cmd, "-k", "liveliness")
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
+    assert "1 passed" in run.stdout
+
+
+def test_the_command_lists_the_rules():
+    run = _cli("--list-rules", "uav")
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.startswith("U1 ") and "R1 " not in run.stdout
+    assert "test_the_lockstep_barrier_holds" in run.stdout
+
+
+def test_the_command_without_a_kind_is_a_usage_error():
+    run = _cli()
+    assert run.returncode == 2 and "give robot or uav" in run.stderr and "Traceback" not in run.stderr
