@@ -25,6 +25,7 @@ from protocol.transport import Transport, open_session
 
 from .events import EventLog
 from .fleet import FleetLink
+from .preview import Previewer
 from .progress import Progress
 from .watch import VehicleWatch
 
@@ -156,6 +157,7 @@ class Mission:
     def _capture(self) -> CameraFrame:
         frame = _query(self.transport, self.keys.camera, CameraRequest(seq=self._next()), CameraFrame, "camera")
         self.frames.append(frame)
+        self.previewer.submit(frame)
         return frame
 
     def _event(self, kind: str, robots, what: str, action: str = "") -> None:
@@ -178,6 +180,7 @@ class Mission:
         self.flight = None
         try:
             self._token = self.transport.announce(self.keys.alive_uav)
+            self.previewer = Previewer(lambda f: self.transport.put(self.keys.uav_frame, encode(f)))
             self.fleet = FleetLink(self.transport, self.keys)
             self._status("connecting", message="waiting for the world on Zenoh")
             self.fleet.wait_until(lambda: self.fleet.world_alive, self.cfg.startup_timeout_s,
@@ -604,6 +607,8 @@ class Mission:
         if self._ended:
             return
         self._ended = True
+        if getattr(self, "previewer", None) is not None:
+            self.previewer.close()   # the mission's last images reach observers before its end
         self.transport.put(self.keys.mission_end, encode(MissionEnd(completed=completed, reason=reason,
                                                                     seq=self._next())))
 

@@ -55,6 +55,7 @@ _SUBCOMMANDS = {
     "plan": ("uav_robots.plan_cli", "add_plan_parser"),
     "bench": ("uav_robots.plan_cli", "add_bench_parser"),
     "conformance": ("uav_robots.conformance_cli", "add_conformance_parser"),
+    "replay": ("uav_robots.replay_cli", "add_replay_parser"),
 }
 
 

@@ -202,6 +202,38 @@ def check_arguments(args) -> tuple[str, object]:
     return name, free
 
 
+def start_observer(launcher: Launcher):
+    """The recorder: a Zenoh client of the fleet, connected to the UAV's endpoint (the UAV listens)."""
+    from .observer import Observer
+
+    try:
+        return Observer(launcher.endpoint, launcher.fleet)
+    except MissionError as exc:
+        print(f"uav-robots: no recording: {exc}", file=sys.stderr, flush=True)
+        return None
+
+
+def write_views(out: Path, samples: list, fleet: str, quiet: bool) -> None:
+    """mission.mcap, replay.mp4 (from the recording, as `uav-robots replay` makes it) and report.html."""
+    from uav_agent.mission import load_report
+
+    from . import recording, replay, report_html
+
+    report = load_report(out)
+    try:
+        report_html.write(out, report)
+        rows = (report.get("truth") or {}).get("rows") or (report.get("plan") or {}).get("map", {}).get("rows")
+        cell_m = float((report.get("truth") or {}).get("cell_size_m", 1.0))
+        recording.write_mcap(out / recording.MCAP, samples, f"uavr/{fleet}", rows, cell_m, report.get("events", []))
+        replay.render(recording.read_mcap(out / recording.MCAP), out / replay.VIDEO)
+    except Exception as exc:  # noqa: BLE001 - the mission's own report is written; say what is missing
+        print(f"uav-robots: could not write the recording or the video: {exc}", file=sys.stderr, flush=True)
+        return
+    if not quiet:
+        print(f"  recording: {out / recording.MCAP} (Foxglove opens it), {out / replay.VIDEO}, "
+              f"{out / report_html.REPORT_HTML}", flush=True)
+
+
 def run(args) -> int:
     name, free = check_arguments(args)
     launcher = Launcher(args)
@@ -210,8 +242,10 @@ def run(args) -> int:
     if not (args.quiet or args.json):
         print(f"uav-robots: map {name} ({free.shape[1]}x{free.shape[0]}), {args.robots} robots, "
               f"fleet {launcher.fleet}, zenoh {launcher.endpoint}, mavlink udp:{launcher.udp}", flush=True)
+    observer = None
     try:
         uav = launcher.start()
+        observer = start_observer(launcher)
         code = launcher.watch(uav, args.timeout)
     except KeyboardInterrupt:
         print("interrupted: stopping every process", file=sys.stderr, flush=True)
@@ -229,6 +263,9 @@ def run(args) -> int:
         report["processes"] = launcher.pids()
         report.setdefault("timings", {})["wall_total"] = round(time.perf_counter() - t0, 3)
         report_path.write_text(json.dumps(report, indent=1))
+    samples = observer.close() if observer is not None else []
+    if kept and report_path.exists():
+        write_views(launcher.out, samples, launcher.fleet, quiet=args.quiet or args.json)
     if args.json:
         summary = report if report_path.exists() else {"completed": False, "outcome": "aborted",
                                                        "reason": f"the UAV exited with code {code}"}
