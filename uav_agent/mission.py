@@ -19,8 +19,8 @@ from typing import Any
 from protocol.errors import MissionError, ProtocolError
 from protocol.grid import Cell
 from protocol.keys import Keys
-from protocol.messages import (CameraFrame, CameraRequest, MissionEnd, MissionStatus, Plan, Record, RecordRequest, Tick,
-                               WorldInfo, WorldInfoRequest, decode, encode)
+from protocol.messages import (CameraFrame, CameraRequest, MissionEnd, MissionEvent, MissionStatus, Plan, Record,
+                               RecordRequest, Tick, WorldInfo, WorldInfoRequest, decode, encode)
 from protocol.transport import Transport, open_session
 
 from .events import EventLog
@@ -162,6 +162,12 @@ class Mission:
 
     def _event(self, kind: str, robots, what: str, action: str = "") -> None:
         e = self.events.add(self.tick, kind, list(robots), what, action)
+        try:   # for observers; the event log (report.json) is the record
+            self.transport.put(self.keys.mission_event, encode(MissionEvent(
+                tick=e.tick, time_s=e.time_s, kind=kind, robots=list(e.robots), what=what, action=action,
+                seq=self._next())))
+        except Exception:  # noqa: BLE001 - an abort's event must not be lost to a closing session
+            pass
         self.progress.phase("event", f"tick {e.tick}: {kind} {list(e.robots) or ''} {what}"
                                      + (f" -> {action}" if action else ""))
 

@@ -224,7 +224,7 @@ def write_views(out: Path, samples: list, fleet: str, quiet: bool) -> None:
         report_html.write(out, report)
         rows = (report.get("truth") or {}).get("rows") or (report.get("plan") or {}).get("map", {}).get("rows")
         cell_m = float((report.get("truth") or {}).get("cell_size_m", 1.0))
-        recording.write_mcap(out / recording.MCAP, samples, f"uavr/{fleet}", rows, cell_m, report.get("events", []))
+        recording.write_mcap(out / recording.MCAP, samples, f"uavr/{fleet}", rows, cell_m)
         replay.render(recording.read_mcap(out / recording.MCAP), out / replay.VIDEO)
     except Exception as exc:  # noqa: BLE001 - the mission's own report is written; say what is missing
         print(f"uav-robots: could not write the recording or the video: {exc}", file=sys.stderr, flush=True)

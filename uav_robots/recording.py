@@ -1,8 +1,8 @@
 """mission.mcap: a mission in the MCAP format, JSON-encoded channels with JSON schemas, so Foxglove opens it.
 
 Written from what an observer received on the wire (plans, ticks, robot states, done flags, mission
-status and end, the UAV's camera images) plus the world's floor (details.json's `truth` rows, the map
-the robots moved on) and the UAV's events (report.json, with their wall-clock times). Camera images use
+status, end and events, the UAV's camera images) plus the world's floor (details.json's `truth` rows,
+the map the robots moved on). Camera images use
 Foxglove's `foxglove.CompressedImage`, the camera's pose `foxglove.PoseInFrame`, the floor `foxglove.Grid`;
 fleet messages keep the protocol's own schemas (protocol/schemas/).
 
@@ -30,7 +30,8 @@ MCAP = "mission.mcap"
 # The protocol topic each key's tail goes to, and the message type it carries.
 _TOPICS = {"tick": ("/fleet/tick", "Tick"), "plan": ("/fleet/plan", "Plan"), "ack": ("/fleet/ack", "PlanAck"),
            "state": ("/fleet/state", "RobotState"), "done": ("/fleet/done", "Done"),
-           "mission/status": ("/mission/status", "MissionStatus"), "mission/end": ("/mission/end", "MissionEnd")}
+           "mission/status": ("/mission/status", "MissionStatus"), "mission/end": ("/mission/end", "MissionEnd"),
+           "mission/event": ("/mission/event", "MissionEvent")}
 
 _TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
 _VEC3 = {"type": "object", "properties": {a: {"type": "number"} for a in "xyz"}}
@@ -50,10 +51,6 @@ FOXGLOVE_SCHEMAS: dict[str, dict[str, Any]] = {
         "fields": {"type": "array", "items": {"type": "object", "properties": {
             "name": {"type": "string"}, "offset": {"type": "integer"}, "type": {"type": "integer"}}}},
         "data": {"type": "string", "contentEncoding": "base64"}}},
-    "uav_robots.MissionEvent": {"type": "object", "properties": {
-        "tick": {"type": "integer"}, "time_s": {"type": "number"}, "kind": {"type": "string"},
-        "robots": {"type": "array", "items": {"type": "integer"}}, "what": {"type": "string"},
-        "action": {"type": "string"}, "unix": {"type": "number"}}},
 }
 UINT8 = 1   # foxglove.NumericType
 
@@ -93,7 +90,7 @@ def _camera(frame: CameraFrame, ns: int) -> tuple[dict[str, Any], dict[str, Any]
 
 
 def write_mcap(path: Path, samples: Iterable[Sample], fleet_prefix: str, rows: list[str] | None,
-               cell_m: float, events: list[dict[str, Any]]) -> dict[str, int]:
+               cell_m: float) -> dict[str, int]:
     """Write the recording; returns the message count per topic."""
     from mcap.writer import Writer
 
@@ -138,9 +135,6 @@ def write_mcap(path: Path, samples: Iterable[Sample], fleet_prefix: str, rows: l
             topic = _topic(fleet_prefix, s.key)
             if topic is not None:
                 put(topic[0], topic[1], s.time_ns, s.payload)
-        for e in events:
-            ns = int(e.get("unix", 0) * 1e9) or t0
-            put("/mission/event", "uav_robots.MissionEvent", ns, e)
         w.finish()
     return counts
 
