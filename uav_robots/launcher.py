@@ -166,6 +166,10 @@ def check_arguments(args) -> tuple[str, object]:
     from sim_world.world import DRONE_CAMERA, MOVE_BATCH_TIMEOUT_S, camera_options, slip_probability
 
     _number("--robots", args.robots, 1, MAX_ROBOTS)
+    if getattr(args, "view", None) is not None:
+        _number("--view", args.view, 0, 65535)
+    if getattr(args, "view_hold", None) is not None:
+        _number("--view-hold", args.view_hold, 0, 7 * 86400)
     _number("--seed", args.seed, 0, 2**32 - 1)
     _number("--time-scale", args.time_scale, 0, 1000, lo_open=True)
     _number("--tick-rate", args.tick_rate, 0, 1000)
@@ -213,6 +217,20 @@ def start_observer(launcher: Launcher):
         return None
 
 
+def open_view(args, free):
+    """The live view's server, up before any process starts so a busy port is bad input, not a lost view."""
+    if args.view is None:
+        return None
+    from .view import LiveView
+
+    try:
+        view = LiveView(args.view, free)
+    except OSError as exc:
+        raise UavRobotsError(f"--view {args.view}: cannot serve there: {exc.strerror or exc}") from None
+    print(f"uav-robots: live view at {view.url}", flush=True)
+    return view
+
+
 def write_views(out: Path, samples: list, fleet: str, quiet: bool) -> None:
     """mission.mcap, replay.mp4 (from the recording, as `uav-robots replay` makes it) and report.html."""
     from uav_agent.mission import load_report
@@ -243,9 +261,12 @@ def run(args) -> int:
         print(f"uav-robots: map {name} ({free.shape[1]}x{free.shape[0]}), {args.robots} robots, "
               f"fleet {launcher.fleet}, zenoh {launcher.endpoint}, mavlink udp:{launcher.udp}", flush=True)
     observer = None
+    view = open_view(args, free)
     try:
         uav = launcher.start()
         observer = start_observer(launcher)
+        if view is not None and observer is not None:
+            view.follow(observer)
         code = launcher.watch(uav, args.timeout)
     except KeyboardInterrupt:
         print("interrupted: stopping every process", file=sys.stderr, flush=True)
@@ -282,4 +303,6 @@ def run(args) -> int:
               file=sys.stderr, flush=True)
     if not kept:
         shutil.rmtree(launcher.out, ignore_errors=True)
+    if view is not None:
+        view.hold(args.view_hold)
     return code if code in (0, 1, 3, 130) else 1

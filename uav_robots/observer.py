@@ -32,6 +32,11 @@ class Observer:
         with self._lock:
             self.samples.append(Sample(time.time_ns(), key, payload))
 
+    def since(self, i: int) -> list[Sample]:
+        """Samples received after the first `i` (a reader keeps its own position)."""
+        with self._lock:
+            return self.samples[i:]
+
     def close(self) -> list[Sample]:
         """Stop listening; every sample received, in arrival order."""
         if self._transport is not None:

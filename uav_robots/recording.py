@@ -151,6 +151,9 @@ class Recording:
     events: list[dict[str, Any]] = field(default_factory=list)
     phases: list[tuple[int, str]] = field(default_factory=list)                   # (log time ns, phase)
     images: list[tuple[int, bytes]] = field(default_factory=list)                 # (log time ns, JPEG)
+    poses: list[tuple[int, dict[str, float]]] = field(default_factory=list)       # (log time ns, UAV position)
+    tick_times: list[tuple[int, int]] = field(default_factory=list)              # (log time ns, k)
+    end: dict[str, Any] | None = None
     counts: dict[str, int] = field(default_factory=dict)
 
 
@@ -167,7 +170,12 @@ def read_mcap(path: Path) -> Recording:
                 rec.images.append((message.log_time, base64.b64decode(json.loads(message.data)["data"])))
                 continue
             body = json.loads(message.data.split(b"\0", 1)[0])
-            if topic == "/map":
+            if topic == "/uav/pose":
+                p = body["pose"]["position"]
+                rec.poses.append((message.log_time, {"east_m": p["x"], "north_m": p["y"], "alt_m": p["z"]}))
+            elif topic == "/mission/end":
+                rec.end = {"completed": body["completed"], "reason": body.get("reason", "")}
+            elif topic == "/map":
                 grid = np.frombuffer(base64.b64decode(body["data"]), np.uint8)
                 free = grid.reshape(-1, body["column_count"])[::-1].astype(bool)
             elif topic == "/fleet/state":
@@ -179,6 +187,7 @@ def read_mcap(path: Path) -> Recording:
                 rec.starts.setdefault(body["robot"], tuple(body["path"][0]))
             elif topic == "/fleet/tick":
                 rec.ticks = max(rec.ticks, body["k"])
+                rec.tick_times.append((message.log_time, body["k"]))
             elif topic == "/mission/status":
                 rec.phases.append((message.log_time, body["phase"]))
             elif topic == "/mission/event":

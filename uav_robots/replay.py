@@ -13,7 +13,7 @@ import numpy as np
 
 from uav_agent.visualize import FLOOR, SHELF, _palette
 
-from .recording import MCAP, Recording, read_mcap
+from .recording import Recording
 
 VIDEO = "replay.mp4"
 MAX_SIDE_PX = 1400      # the map part of a frame, before the legend
@@ -123,9 +123,16 @@ def _legend(frame: np.ndarray, x: int, t: int, ticks: int, arrived: int, n: int,
         cv2.putText(frame, str(rid), (cx + 10, cy + 5), FONT, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
 
 
-def replay(directory: Path) -> Path:
-    """`uav-robots replay DIR`: DIR/replay.mp4 rendered again from DIR/mission.mcap."""
-    rec = read_mcap(directory / MCAP)
-    out = directory / VIDEO
-    render(rec, out)
-    return out
+def timeline(rec: Recording) -> dict:
+    """The whole mission for the view's replay mode: cells per tick, plans, events, images with their tick."""
+    import base64
+    import bisect
+
+    times = [ns for ns, _ in sorted(rec.tick_times)]
+    poses = dict(rec.poses)
+    images = [{"tick": bisect.bisect_right(times, ns), "pose": poses.get(ns, {}),
+               "data": "data:image/jpeg;base64," + base64.b64encode(jpeg).decode()} for ns, jpeg in rec.images]
+    return {"ticks": rec.ticks, "robots": {str(r): [list(c) for c in cells] for r, cells in _positions(rec).items()},
+            "goals": {str(r): list(g) for r, g in rec.goals.items()},
+            "paths": {str(r): [list(c) for c in p] for r, p in rec.paths.items()},
+            "events": rec.events, "images": images, "end": rec.end}
