@@ -731,6 +731,7 @@ def exit_code(report: dict[str, Any]) -> int:
 
 DETAILS = "details.json"   # the per-tick and per-cell data, beside the compact report.json
 PLAN = "plan.json"         # the first plan, in the plan file format (uav-robots plan --out)
+GIF_MAX_SIDE = 64          # cells: beyond, a robot is a pixel or two in a GIF
 
 
 def split_report(report: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any] | None]:
@@ -787,7 +788,8 @@ def write_outputs(out: Path, report: dict[str, Any], frames: list[CameraFrame], 
     visualize.write_png(out / "paths.png", visualize.draw_paths(free, result.paths, result.goals))
     executed = {int(k): [tuple(c) for c in v] for k, v in report["executed"].items()}
     goals = {rid: tuple(g) for rid, g in zip(ids, result.goals)}
-    visualize.replay_gif(out / "replay.gif", free, executed, goals)
+    if max(free.shape) <= GIF_MAX_SIDE:   # larger floors: replay.mp4 (uav-robots run --out) is readable
+        visualize.replay_gif(out / "replay.gif", free, executed, goals)
     write_report(out, report)
 
 
@@ -821,5 +823,6 @@ def summary(report: dict[str, Any], out: Path | None) -> str:
         "  time: " + ", ".join(f"{k} {v:.2f}s" for k, v in t.items()),
     ]
     if out:
-        lines.append(f"  outputs: {out}/report.json, details.json, plan.json, overhead.png, paths.png, replay.gif")
+        gif = ", replay.gif" if (out / "replay.gif").exists() else ""
+        lines.append(f"  outputs: {out}/report.json, details.json, plan.json, overhead.png, paths.png{gif}")
     return "\n".join(lines)
