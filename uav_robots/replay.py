@@ -95,15 +95,23 @@ def render(rec: Recording, path: Path, fps: int = FPS) -> tuple[int, int, int]:
                 arrived += rec.goals.get(rid) == c
                 cv2.circle(frame, px(c), r, colours[rid], -1, cv2.LINE_AA)
                 cv2.circle(frame, px(c), r, (0, 0, 0), 1, cv2.LINE_AA)
-                label = str(rid)
-                (tw, th), _ = cv2.getTextSize(label, FONT, text_scale, 1)
-                cx, cy = px(c)
-                cv2.putText(frame, label, (cx - tw // 2, cy + th // 2), FONT, text_scale, (0, 0, 0), 1, cv2.LINE_AA)
+                _label(frame, str(rid), px(c), r, text_scale, colours[rid])
             _legend(frame, mw + 10, t, rec.ticks, arrived, len(ids), (x0, y0, x1, y1), colours)
             writer.write(frame)
     finally:
         writer.release()
     return rec.ticks + 1, width, height
+
+
+def _label(frame: np.ndarray, label: str, centre: tuple[int, int], r: int, scale: float, colour) -> None:
+    """The id inside its disc: shrunk to fit, black or white, whichever reads on the disc's colour."""
+    (tw, th), _ = cv2.getTextSize(label, FONT, scale, 1)
+    if tw > 2 * r - 2:
+        scale *= (2 * r - 2) / tw
+        (tw, th), _ = cv2.getTextSize(label, FONT, scale, 1)
+    b, g, r_ = colour
+    ink = (0, 0, 0) if 0.114 * b + 0.587 * g + 0.299 * r_ > 110 else (255, 255, 255)
+    cv2.putText(frame, label, (centre[0] - tw // 2, centre[1] + th // 2), FONT, scale, ink, 1, cv2.LINE_AA)
 
 
 def _legend(frame: np.ndarray, x: int, t: int, ticks: int, arrived: int, n: int, box, colours) -> None:
