@@ -235,3 +235,28 @@ def test_recorded_mission_in_the_view(recorded):
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(timeout=5)
+
+
+def test_a_view_client_gets_what_changed_since_its_last_update():
+    from protocol.keys import Keys
+    from protocol.messages import MissionEvent, Plan, RobotState, encode
+    from uav_robots.view_state import FleetView, Seen
+
+    k, view = Keys("f1"), FleetView()
+    for rid, (a, b) in enumerate([((1, 1), (3, 1)), ((5, 5), (5, 6))]):
+        view.apply(k.plan(rid), encode(Plan(robot=rid, plan_id="p", path=[a, b], goal=b)))
+    fast, slow = Seen(), Seen()
+    first = view.delta(fast)
+    assert first["robots"] == {"0": [1, 1, "planned"], "1": [5, 5, "planned"]} and "paths" in first
+    assert view.delta(slow)["goals"] == {"0": [3, 1], "1": [5, 6]}
+    view.apply(k.state(0), encode(RobotState(robot=0, tick=1, cell=(2, 1), status="stepping")))
+    assert view.delta(fast)["robots"] == {"0": [2, 1, "stepping"]}
+    assert view.delta(fast).get("robots") is None          # nothing moved since
+    view.apply(k.state(0), encode(RobotState(robot=0, tick=2, cell=(3, 1), status="done")))
+    view.apply(k.mission_event, encode(MissionEvent(tick=2, time_s=1.0, kind="replan", robots=[1], what="w")))
+    # The slow client skipped tick 1: it gets the newest cell only, and the event once.
+    late = view.delta(slow)
+    assert late["robots"] == {"0": [3, 1, "done"]} and late["tick"] == 2
+    assert [e["kind"] for e in late["events"]] == ["replan"] and "events" not in view.delta(slow)
+    view.apply(k.state(1), b"not json")                       # a view shows what it can read
+    assert view.delta(slow).get("robots") is None

@@ -28,6 +28,8 @@ def preview_frame(frame: CameraFrame, side: int = PREVIEW_SIDE) -> CameraFrame:
         image = cv2.resize(image, (max(1, round(image.shape[1] * s)), max(1, round(image.shape[0] * s))),
                            interpolation=cv2.INTER_AREA)
     ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    if not ok:
+        raise ValueError("the preview does not encode as JPEG")
     h, w = image.shape[:2]
     sx, sy = w / frame.width, h / frame.height
     return dataclasses.replace(frame, width=w, height=h, fx=frame.fx * sx, fy=frame.fy * sy, cx=frame.cx * sx,

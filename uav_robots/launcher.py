@@ -227,7 +227,7 @@ def open_view(args, free):
         view = LiveView(args.view, free)
     except OSError as exc:
         raise UavRobotsError(f"--view {args.view}: cannot serve there: {exc.strerror or exc}") from None
-    print(f"uav-robots: live view at {view.url}", flush=True)
+    print(f"uav-robots: live view at {view.url}", flush=True, file=sys.stderr if args.json else sys.stdout)
     return view
 
 

@@ -23,7 +23,7 @@ def hold(url: str, seconds: float | None) -> None:
     if seconds <= 0:
         return
     print(f"uav-robots: the view stays at {url}" + (" until Ctrl-C" if seconds == float("inf")
-                                                     else f" for {seconds:g} s"), flush=True)
+                                                     else f" for {seconds:g} s"), flush=True, file=sys.stderr)
     try:
         time.sleep(seconds) if seconds != float("inf") else _forever()
     except KeyboardInterrupt:
