@@ -9,9 +9,6 @@ import dataclasses
 import threading
 from typing import Callable
 
-import cv2
-import numpy as np
-
 from protocol.messages import CameraFrame
 
 PREVIEW_SIDE = 640      # px, the longer side: enough to see robots and markers in a browser or Foxglove
@@ -20,6 +17,10 @@ JPEG_QUALITY = 80
 
 def preview_frame(frame: CameraFrame, side: int = PREVIEW_SIDE) -> CameraFrame:
     """The same frame (pose, time, seq) with its image as a JPEG no longer than `side`; intrinsics scaled."""
+    # Imported here: the UAV must open its Zenoh router before paying for OpenCV (robots wait for it).
+    import cv2
+    import numpy as np
+
     image = cv2.imdecode(np.frombuffer(frame.png, np.uint8), cv2.IMREAD_COLOR)
     if image is None:
         raise ValueError("the camera frame's image does not decode")
