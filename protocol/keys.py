@@ -48,6 +48,15 @@ class Keys:
     def mission_end(self) -> str:
         return f"{self.prefix}/mission/end"
 
+    @property
+    def mission_event(self) -> str:
+        return f"{self.prefix}/mission/event"
+
+    @property
+    def uav_frame(self) -> str:
+        """Every image the UAV takes, downscaled to JPEG, for observers (views, recorders); no one must listen."""
+        return f"{self.prefix}/uav/frame"
+
     # robots -> UAV
     def ack(self, robot: int) -> str:
         return f"{self.prefix}/robot/{robot}/ack"

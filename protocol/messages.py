@@ -265,10 +265,22 @@ class MissionEnd(Message):
     reason: Text = ""
 
 
+@dataclass(frozen=True)
+class MissionEvent(Message):
+    """Something the UAV saw or did that a person must know (a fault, a replan, a verification)."""
+    tick: TickNo
+    time_s: NonNegative            # since the mission started
+    kind: Text                     # robot-lost, robot-stalled, deviation, replan, done-contradicted, abort, ...
+    robots: Annotated[list[RobotId], MaxLen(MAX_ROBOTS)]
+    what: Text
+    action: Text = ""
+
+
 MESSAGE_TYPES: dict[str, type[Message]] = {
     cls.__name__: cls
     for cls in (Plan, PlanAck, Tick, MoveRequest, MoveResult, MoveBatch, MoveBatchResult, RobotState, Done, CameraRequest,
-                CameraFrame, WorldInfoRequest, WorldInfo, RecordRequest, Record, MissionStatus, MissionEnd)
+                CameraFrame, WorldInfoRequest, WorldInfo, RecordRequest, Record, MissionStatus, MissionEnd,
+                MissionEvent)
 }
 
 M = TypeVar("M", bound=Message)

@@ -173,4 +173,11 @@ def test_paper_setting_450_with_50_robots(tmp_path):
     report = load_report(tmp_path)
     _check_report(report)
     assert (tmp_path / "report.json").stat().st_size <= 200_000, "report.json must stay readable"
+    # The 450 floor's video replaces its GIF (a robot would be a pixel in it): one frame per tick.
+    assert not (tmp_path / "replay.gif").exists() and (tmp_path / "report.html").exists()
+    import cv2
+
+    video = cv2.VideoCapture(str(tmp_path / "replay.mp4"))
+    assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == report["ticks"] + 1
+    assert (tmp_path / "mission.mcap").stat().st_size > 0
     print(f"450x450 / 50 robots wall time {wall:.1f} s, timings {report['timings']}")

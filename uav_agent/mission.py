@@ -19,12 +19,13 @@ from typing import Any
 from protocol.errors import MissionError, ProtocolError
 from protocol.grid import Cell
 from protocol.keys import Keys
-from protocol.messages import (CameraFrame, CameraRequest, MissionEnd, MissionStatus, Plan, Record, RecordRequest, Tick,
-                               WorldInfo, WorldInfoRequest, decode, encode)
+from protocol.messages import (CameraFrame, CameraRequest, MissionEnd, MissionEvent, MissionStatus, Plan, Record,
+                               RecordRequest, Tick, WorldInfo, WorldInfoRequest, decode, encode)
 from protocol.transport import Transport, open_session
 
 from .events import EventLog
 from .fleet import FleetLink
+from .preview import Previewer
 from .progress import Progress
 from .watch import VehicleWatch
 
@@ -156,10 +157,17 @@ class Mission:
     def _capture(self) -> CameraFrame:
         frame = _query(self.transport, self.keys.camera, CameraRequest(seq=self._next()), CameraFrame, "camera")
         self.frames.append(frame)
+        self.previewer.submit(frame)
         return frame
 
     def _event(self, kind: str, robots, what: str, action: str = "") -> None:
         e = self.events.add(self.tick, kind, list(robots), what, action)
+        try:   # for observers; the event log (report.json) is the record
+            self.transport.put(self.keys.mission_event, encode(MissionEvent(
+                tick=e.tick, time_s=e.time_s, kind=kind, robots=list(e.robots), what=what, action=action,
+                seq=self._next())))
+        except Exception:  # noqa: BLE001 - an abort's event must not be lost to a closing session
+            pass
         self.progress.phase("event", f"tick {e.tick}: {kind} {list(e.robots) or ''} {what}"
                                      + (f" -> {action}" if action else ""))
 
@@ -178,6 +186,7 @@ class Mission:
         self.flight = None
         try:
             self._token = self.transport.announce(self.keys.alive_uav)
+            self.previewer = Previewer(lambda f: self.transport.put(self.keys.uav_frame, encode(f)))
             self.fleet = FleetLink(self.transport, self.keys)
             self._status("connecting", message="waiting for the world on Zenoh")
             self.fleet.wait_until(lambda: self.fleet.world_alive, self.cfg.startup_timeout_s,
@@ -604,6 +613,8 @@ class Mission:
         if self._ended:
             return
         self._ended = True
+        if getattr(self, "previewer", None) is not None:
+            self.previewer.close()   # the mission's last images reach observers before its end
         self.transport.put(self.keys.mission_end, encode(MissionEnd(completed=completed, reason=reason,
                                                                     seq=self._next())))
 
@@ -720,6 +731,7 @@ def exit_code(report: dict[str, Any]) -> int:
 
 DETAILS = "details.json"   # the per-tick and per-cell data, beside the compact report.json
 PLAN = "plan.json"         # the first plan, in the plan file format (uav-robots plan --out)
+GIF_MAX_SIDE = 64          # cells: beyond, a robot is a pixel or two in a GIF
 
 
 def split_report(report: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any] | None]:
@@ -776,7 +788,8 @@ def write_outputs(out: Path, report: dict[str, Any], frames: list[CameraFrame], 
     visualize.write_png(out / "paths.png", visualize.draw_paths(free, result.paths, result.goals))
     executed = {int(k): [tuple(c) for c in v] for k, v in report["executed"].items()}
     goals = {rid: tuple(g) for rid, g in zip(ids, result.goals)}
-    visualize.replay_gif(out / "replay.gif", free, executed, goals)
+    if max(free.shape) <= GIF_MAX_SIDE:   # larger floors: replay.mp4 (uav-robots run --out) is readable
+        visualize.replay_gif(out / "replay.gif", free, executed, goals)
     write_report(out, report)
 
 
@@ -810,5 +823,6 @@ def summary(report: dict[str, Any], out: Path | None) -> str:
         "  time: " + ", ".join(f"{k} {v:.2f}s" for k, v in t.items()),
     ]
     if out:
-        lines.append(f"  outputs: {out}/report.json, details.json, plan.json, overhead.png, paths.png, replay.gif")
+        gif = ", replay.gif" if (out / "replay.gif").exists() else ""
+        lines.append(f"  outputs: {out}/report.json, details.json, plan.json, overhead.png, paths.png{gif}")
     return "\n".join(lines)

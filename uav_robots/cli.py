@@ -45,7 +45,16 @@ def _add_run(sub) -> None:
     out.add_argument("--json", action="store_true",
                      help="print only the summary, as one JSON object (report.json's, with the run's wall time)")
     p.add_argument("--timeout", type=float, default=900.0, help="give up after this many seconds")
+    add_view_arguments(p)
     p.set_defaults(func=lambda a: importlib.import_module("uav_robots.launcher").run(a))
+
+
+def add_view_arguments(p) -> None:
+    p.add_argument("--view", nargs="?", type=int, const=8765, default=None, metavar="PORT",
+                   help="serve a live view of the mission at http://127.0.0.1:PORT/ (default port 8765; 0: any free)")
+    p.add_argument("--view-hold", type=float, default=None, metavar="S",
+                   help="keep the view up S seconds after the mission (default: until Ctrl-C on a terminal, "
+                        "else 0)")
 
 
 # Each subcommand is defined beside the code it runs and imported only when chosen:
@@ -58,6 +67,7 @@ _SUBCOMMANDS = {
     "plan": ("uav_robots.plan_cli", "add_plan_parser"),
     "bench": ("uav_robots.plan_cli", "add_bench_parser"),
     "conformance": ("uav_robots.conformance_cli", "add_conformance_parser"),
+    "replay": ("uav_robots.replay_cli", "add_replay_parser"),
 }
 
 

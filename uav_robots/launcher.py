@@ -170,6 +170,10 @@ def check_arguments(args) -> tuple[str, object]:
                                  vehicle_config)
 
     _number("--robots", args.robots, 1, MAX_ROBOTS)
+    if getattr(args, "view", None) is not None:
+        _number("--view", args.view, 0, 65535)
+    if getattr(args, "view_hold", None) is not None:
+        _number("--view-hold", args.view_hold, 0, 7 * 86400)
     _number("--seed", args.seed, 0, 2**32 - 1)
     _number("--time-scale", args.time_scale, 0, 1000, lo_open=True)
     _number("--tick-rate", args.tick_rate, 0, 1000)
@@ -208,6 +212,52 @@ def check_arguments(args) -> tuple[str, object]:
     return name, free
 
 
+def start_observer(launcher: Launcher):
+    """The recorder: a Zenoh client of the fleet, connected to the UAV's endpoint (the UAV listens)."""
+    from .observer import Observer
+
+    try:
+        return Observer(launcher.endpoint, launcher.fleet)
+    except MissionError as exc:
+        print(f"uav-robots: no recording: {exc}", file=sys.stderr, flush=True)
+        return None
+
+
+def open_view(args, free):
+    """The live view's server, up before any process starts so a busy port is bad input, not a lost view."""
+    if args.view is None:
+        return None
+    from .view import LiveView
+
+    try:
+        view = LiveView(args.view, free)
+    except OSError as exc:
+        raise UavRobotsError(f"--view {args.view}: cannot serve there: {exc.strerror or exc}") from None
+    print(f"uav-robots: live view at {view.url}", flush=True, file=sys.stderr if args.json else sys.stdout)
+    return view
+
+
+def write_views(out: Path, samples: list, fleet: str, quiet: bool) -> None:
+    """mission.mcap, replay.mp4 (from the recording, as `uav-robots replay` makes it) and report.html."""
+    from uav_agent.mission import load_report
+
+    from . import recording, replay, report_html
+
+    report = load_report(out)
+    try:
+        report_html.write(out, report)
+        rows = (report.get("truth") or {}).get("rows") or (report.get("plan") or {}).get("map", {}).get("rows")
+        cell_m = float((report.get("truth") or {}).get("cell_size_m", 1.0))
+        recording.write_mcap(out / recording.MCAP, samples, f"uavr/{fleet}", rows, cell_m)
+        replay.render(recording.read_mcap(out / recording.MCAP), out / replay.VIDEO)
+    except Exception as exc:  # noqa: BLE001 - the mission's own report is written; say what is missing
+        print(f"uav-robots: could not write the recording or the video: {exc}", file=sys.stderr, flush=True)
+        return
+    if not quiet:
+        print(f"  recording: {out / recording.MCAP} (Foxglove opens it), {out / replay.VIDEO}, "
+              f"{out / report_html.REPORT_HTML}", flush=True)
+
+
 def run(args) -> int:
     name, free = check_arguments(args)
     launcher = Launcher(args)
@@ -217,8 +267,13 @@ def run(args) -> int:
         print(f"uav-robots: map {name} ({free.shape[1]}x{free.shape[0]}), {args.robots} robots, "
               f"fleet {launcher.fleet}, zenoh {launcher.endpoint}, mavlink udp:{launcher.udp}"
               + (f", ground station {args.gcs}" if args.gcs else ""), flush=True)
+    observer = None
+    view = open_view(args, free)
     try:
         uav = launcher.start()
+        observer = start_observer(launcher)
+        if view is not None and observer is not None:
+            view.follow(observer)
         code = launcher.watch(uav, args.timeout)
     except KeyboardInterrupt:
         print("interrupted: stopping every process", file=sys.stderr, flush=True)
@@ -236,6 +291,9 @@ def run(args) -> int:
         report["processes"] = launcher.pids()
         report.setdefault("timings", {})["wall_total"] = round(time.perf_counter() - t0, 3)
         report_path.write_text(json.dumps(report, indent=1))
+    samples = observer.close() if observer is not None else []
+    if kept and report_path.exists():
+        write_views(launcher.out, samples, launcher.fleet, quiet=args.quiet or args.json)
     if args.json:
         summary = report if report_path.exists() else {"completed": False, "outcome": "aborted",
                                                        "reason": f"the UAV exited with code {code}"}
@@ -252,4 +310,6 @@ def run(args) -> int:
               file=sys.stderr, flush=True)
     if not kept:
         shutil.rmtree(launcher.out, ignore_errors=True)
+    if view is not None:
+        view.hold(args.view_hold)
     return code if code in (0, 1, 3, 130) else 1

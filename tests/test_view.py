@@ -1,0 +1,262 @@
+"""The live view, the recording, the replay and report.html, with real processes and a real browser."""
+import json
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from scenarios.maps import place, resolve_map
+from uav_agent.mission import load_report
+from uav_robots import replay
+from uav_robots.recording import Recording, read_mcap
+from uav_robots.report_html import arrived_per_tick, compare
+
+CLI = [sys.executable, "-m", "uav_robots"]
+CHROMIUM = next((p for p in (shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome")) if p), None)
+FOXGLOVE = {"/uav/camera": "foxglove.CompressedImage", "/uav/pose": "foxglove.PoseInFrame", "/map": "foxglove.Grid"}
+PROTOCOL = {"/fleet/plan": "Plan", "/fleet/tick": "Tick", "/fleet/state": "RobotState", "/fleet/done": "Done",
+            "/mission/status": "MissionStatus", "/mission/end": "MissionEnd"}
+
+
+def _port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _final_cells(report) -> dict[str, list[int]]:
+    return {rid: list(cells[-1]) for rid, cells in report["executed"].items()}
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """One small mission with --out: its directory and its whole report."""
+    out = tmp_path_factory.mktemp("recorded")
+    res = subprocess.run(CLI + ["run", "--robots", "8", "--out", str(out)], capture_output=True, text=True,
+                         timeout=240)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    return out, load_report(out)
+
+
+def test_mission_mcap_holds_the_mission(recorded):
+    from mcap.reader import make_reader
+
+    out, report = recorded
+    with open(out / "mission.mcap", "rb") as f:
+        summary = make_reader(f).get_summary()
+    topics = {c.topic: summary.schemas[c.schema_id] for c in summary.channels.values()}
+    for topic, name in {**FOXGLOVE, **PROTOCOL}.items():
+        assert topic in topics, f"{topic} missing from mission.mcap"
+        assert topics[topic].name == name and topics[topic].encoding == "jsonschema"
+        json.loads(topics[topic].data)   # every channel's schema is a JSON schema
+    counts = {summary.channels[cid].topic: n for cid, n in summary.statistics.channel_message_counts.items()}
+    assert counts["/fleet/tick"] == report["ticks"]
+    assert counts["/fleet/plan"] == report["robots"]
+    assert counts["/fleet/done"] == report["robots"]
+    assert counts["/uav/camera"] == counts["/uav/pose"] >= 2   # the survey and the verification at least
+    rec = read_mcap(out / "mission.mcap")
+    # One state per robot per tick, and the last one is where the world says each robot ended.
+    assert counts["/fleet/state"] == report["robots"] * report["ticks"]
+    assert {str(r): list(c[max(c)]) for r, c in rec.cells.items()} == _final_cells(report)
+    assert rec.ticks == report["ticks"]
+    truth = np.array([[c != "@" for c in row] for row in report["truth"]["rows"]])
+    assert np.array_equal(rec.free, truth)
+    assert rec.end == {"completed": True, "reason": report["reason"]}
+    jpeg = cv2.imdecode(np.frombuffer(rec.images[-1][1], np.uint8), cv2.IMREAD_COLOR)
+    assert jpeg is not None and max(jpeg.shape[:2]) <= 640
+
+
+def test_replay_reproduces_the_video(recorded):
+    out, report = recorded
+    first = out / "replay.mp4"
+    kept = out / "first.mp4"
+    shutil.copy(first, kept)
+    res = subprocess.run(CLI + ["replay", str(out)], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    frames_a, frames_b = _frames(kept), _frames(first)
+    assert len(frames_a) == len(frames_b) == report["ticks"] + 1
+    assert all(np.array_equal(a, b) for a, b in zip(frames_a, frames_b))
+
+
+def _frames(path: Path) -> list[np.ndarray]:
+    cap = cv2.VideoCapture(str(path))
+    frames = []
+    while True:
+        ok, f = cap.read()
+        if not ok:
+            return frames
+        frames.append(f)
+
+
+def test_report_html_has_the_reports_numbers(recorded):
+    out, report = recorded
+    page = (out / "report.html").read_text()
+    assert "<svg" in page and "http" not in page.replace("http-equiv", "")   # self-contained
+    metrics = report["plan"]["metrics"]
+    rows = compare(report)
+    for number in (report["ticks"], report["robots"], metrics["makespan"], metrics["sum_of_costs"],
+                   sum(c.executed for c in rows)):
+        assert f"<td>{number}</td>" in page
+    assert arrived_per_tick(report)[-1] == report["robots"]
+    for phase, seconds in report["timings"].items():
+        if phase != "wall_total" and seconds > 0:
+            assert f"{phase} {seconds:.2f} s" in page
+
+
+def test_video_is_readable_on_the_450_map(tmp_path):
+    """50 robots spread over warehouse-450: discs of at least 7 px with their ids, a frame of bounded size."""
+    _, free = resolve_map("warehouse-450", 0)
+    p = place(free, 50, 0)
+    rec = Recording(free, cells={i: {0: tuple(s), 1: tuple(s)} for i, s in enumerate(p.starts)},
+                    goals=dict(enumerate(map(tuple, p.goals))), ticks=1)
+    (box, s, r), = [replay.layout(rec)]
+    assert r >= replay.MIN_RADIUS_PX
+    frames, w, h = replay.render(rec, tmp_path / "v.mp4")
+    assert frames == 2 and w <= replay.MAX_SIDE_PX + replay.LEGEND_PX + 2 * r + 8 and h <= w
+    frame = _frames(tmp_path / "v.mp4")[-1]
+    # A robot's disc: its colour fills a radius-r neighbourhood of its centre (robot 0 here).
+    x0, y0 = box[0], box[1]
+    pad = r + 2
+    cx, cy = (p.starts[0][0] - x0) * s + s // 2 + pad, (p.starts[0][1] - y0) * s + s // 2 + pad
+    ring = frame[cy - r + 2, cx].astype(int)
+    floor = np.array(replay.FLOOR)
+    assert np.abs(ring - floor).sum() > 60, "no disc drawn where robot 0 stands"
+
+
+def test_replay_bad_input_is_one_line_exit_2(tmp_path):
+    res = subprocess.run(CLI + ["replay", str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "mission.mcap" in res.stderr
+    (tmp_path / "mission.mcap").write_bytes(b"not an mcap file")
+    res = subprocess.run(CLI + ["replay", str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    res = subprocess.run(CLI + ["run", "--view", "70000"], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2 and "--view" in res.stderr
+
+
+def _browser():
+    if CHROMIUM is None:
+        pytest.skip("no Chromium on this machine (`apt-get install chromium`; .ci/run installs it)")
+    playwright = pytest.importorskip("playwright.sync_api", reason="pip install playwright")
+    return playwright.sync_playwright()
+
+
+def _wait(page, expression, timeout_s):
+    page.wait_for_function(expression, timeout=timeout_s * 1000)
+
+
+def test_live_view_in_a_real_browser(tmp_path):
+    port = _port()
+    log = open(tmp_path / "run.txt", "w")
+    # 5 ticks a second, so two looks a second apart see robots move.
+    proc = subprocess.Popen(CLI + ["run", "--robots", "8", "--tick-rate", "5", "--out", str(tmp_path / "out"),
+                                   "--view", str(port), "--view-hold", "60"],
+                            stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+    try:
+        with _browser() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+            try:
+                page = browser.new_page(viewport={"width": 1300, "height": 950})
+                deadline = time.monotonic() + 60
+                while True:
+                    try:
+                        page.goto(f"http://127.0.0.1:{port}/", timeout=5000)
+                        break
+                    except Exception:
+                        assert time.monotonic() < deadline, "the view never answered"
+                        time.sleep(0.3)
+                _wait(page, "window.viewState && window.viewState.tick >= 1", 120)
+                first = page.evaluate("JSON.stringify(window.viewState.robots)")
+                time.sleep(1.0)
+                second = page.evaluate("JSON.stringify(window.viewState.robots)")
+                assert first != second, "robots did not move between two looks a second apart"
+                _wait(page, "window.viewState.end !== null", 120)
+                _wait(page, "document.getElementById('camera').naturalWidth > 0", 10)
+                shown = page.evaluate("window.viewState")
+                assert page.inner_text("#end").startswith("completed")
+            finally:
+                browser.close()
+        # The report is complete once the launcher has written report.html (it then holds the view).
+        deadline = time.monotonic() + 60
+        while not (tmp_path / "out" / "report.html").exists():
+            assert time.monotonic() < deadline and proc.poll() is None, (tmp_path / "run.txt").read_text()
+            time.sleep(0.2)
+        report = load_report(tmp_path / "out")
+        assert {rid: c[:2] for rid, c in shown["robots"].items()} == _final_cells(report)
+        assert shown["tick"] == report["ticks"]
+        assert shown["end"]["completed"] is report["completed"]
+        assert "live view at http://127.0.0.1:" in (tmp_path / "run.txt").read_text()
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=5)
+        log.close()
+
+
+def test_recorded_mission_in_the_view(recorded):
+    out, report = recorded
+    port = _port()
+    proc = subprocess.Popen(CLI + ["replay", str(out), "--view", str(port), "--view-hold", "60"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+    try:
+        with _browser() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+            try:
+                page = browser.new_page()
+                deadline = time.monotonic() + 60
+                while True:
+                    try:
+                        page.goto(f"http://127.0.0.1:{port}/", timeout=5000)
+                        break
+                    except Exception:
+                        assert time.monotonic() < deadline, "the replay view never answered"
+                        time.sleep(0.3)
+                _wait(page, "window.viewState.updates > 0", 30)
+                start = page.evaluate("window.viewState.robots")
+                assert {r: c[:2] for r, c in start.items()} == {
+                    str(r["id"]): r["start"] for r in report["plan"]["robots"]}
+                page.click("#play")
+                _wait(page, f"window.viewState.tick === {report['ticks']}", 30)
+                assert {r: c[:2] for r, c in page.evaluate("window.viewState.robots").items()} == _final_cells(report)
+            finally:
+                browser.close()
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=5)
+
+
+def test_a_view_client_gets_what_changed_since_its_last_update():
+    from protocol.keys import Keys
+    from protocol.messages import MissionEvent, Plan, RobotState, encode
+    from uav_robots.view_state import FleetView, Seen
+
+    k, view = Keys("f1"), FleetView()
+    for rid, (a, b) in enumerate([((1, 1), (3, 1)), ((5, 5), (5, 6))]):
+        view.apply(k.plan(rid), encode(Plan(robot=rid, plan_id="p", path=[a, b], goal=b)))
+    fast, slow = Seen(), Seen()
+    first = view.delta(fast)
+    assert first["robots"] == {"0": [1, 1, "planned"], "1": [5, 5, "planned"]} and "paths" in first
+    assert view.delta(slow)["goals"] == {"0": [3, 1], "1": [5, 6]}
+    view.apply(k.state(0), encode(RobotState(robot=0, tick=1, cell=(2, 1), status="stepping")))
+    assert view.delta(fast)["robots"] == {"0": [2, 1, "stepping"]}
+    assert view.delta(fast).get("robots") is None          # nothing moved since
+    view.apply(k.state(0), encode(RobotState(robot=0, tick=2, cell=(3, 1), status="done")))
+    view.apply(k.mission_event, encode(MissionEvent(tick=2, time_s=1.0, kind="replan", robots=[1], what="w")))
+    # The slow client skipped tick 1: it gets the newest cell only, and the event once.
+    late = view.delta(slow)
+    assert late["robots"] == {"0": [3, 1, "done"]} and late["tick"] == 2
+    assert [e["kind"] for e in late["events"]] == ["replan"] and "events" not in view.delta(slow)
+    view.apply(k.state(1), b"not json")                       # a view shows what it can read
+    assert view.delta(slow).get("robots") is None

@@ -1,0 +1,46 @@
+"""An observer of a fleet: one more Zenoh client that records everything published under the fleet's prefix.
+
+It needs no hook inside the processes it watches. The subscriber's callback only appends (receive time,
+key, payload) to a list, so a slow consumer never holds back a publisher; decoding happens afterwards.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+from protocol.keys import Keys
+from protocol.transport import Transport, open_session
+
+
+@dataclass(frozen=True)
+class Sample:
+    time_ns: int        # wall clock at reception (the log time of a recording)
+    key: str
+    payload: bytes
+
+
+class Observer:
+    def __init__(self, endpoint: str, fleet: str, wait_s: float = 20.0) -> None:
+        self.keys = Keys(fleet)
+        self._lock = threading.Lock()
+        self.samples: list[Sample] = []
+        self._transport: Transport | None = open_session("observer", connect=[endpoint], wait_s=wait_s)
+        self._transport.subscribe(f"{self.keys.prefix}/**", self._on_sample)
+
+    def _on_sample(self, key: str, payload: bytes) -> None:
+        with self._lock:
+            self.samples.append(Sample(time.time_ns(), key, payload))
+
+    def since(self, i: int) -> list[Sample]:
+        """Samples received after the first `i` (a reader keeps its own position)."""
+        with self._lock:
+            return self.samples[i:]
+
+    def close(self) -> list[Sample]:
+        """Stop listening; every sample received, in arrival order."""
+        if self._transport is not None:
+            self._transport.close()
+            self._transport = None
+        with self._lock:
+            return list(self.samples)

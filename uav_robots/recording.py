@@ -1,0 +1,198 @@
+"""mission.mcap: a mission in the MCAP format, JSON-encoded channels with JSON schemas, so Foxglove opens it.
+
+Written from what an observer received on the wire (plans, ticks, robot states, done flags, mission
+status, end and events, the UAV's camera images) plus the world's floor (details.json's `truth` rows,
+the map the robots moved on). Camera images use
+Foxglove's `foxglove.CompressedImage`, the camera's pose `foxglove.PoseInFrame`, the floor `foxglove.Grid`;
+fleet messages keep the protocol's own schemas (protocol/schemas/).
+
+Frame `floor`: x east and y north in metres from the grid's top-left corner, z up; cell (x, y) is centred
+at (x + 0.5, -(y + 0.5)) * cell size.
+"""
+from __future__ import annotations
+
+import base64
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+from protocol.messages import CameraFrame, decode
+from protocol.schemas import SCHEMA_DIR
+
+from .observer import Sample
+
+MCAP = "mission.mcap"
+
+# The protocol topic each key's tail goes to, and the message type it carries.
+_TOPICS = {"tick": ("/fleet/tick", "Tick"), "plan": ("/fleet/plan", "Plan"), "ack": ("/fleet/ack", "PlanAck"),
+           "state": ("/fleet/state", "RobotState"), "done": ("/fleet/done", "Done"),
+           "mission/status": ("/mission/status", "MissionStatus"), "mission/end": ("/mission/end", "MissionEnd"),
+           "mission/event": ("/mission/event", "MissionEvent")}
+
+_TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
+_VEC3 = {"type": "object", "properties": {a: {"type": "number"} for a in "xyz"}}
+_QUAT = {"type": "object", "properties": {a: {"type": "number"} for a in "xyzw"}}
+_POSE = {"type": "object", "properties": {"position": _VEC3, "orientation": _QUAT}}
+# Foxglove recognises these by name; the schemas state the fields this file uses.
+FOXGLOVE_SCHEMAS: dict[str, dict[str, Any]] = {
+    "foxglove.CompressedImage": {"type": "object", "properties": {
+        "timestamp": _TIME, "frame_id": {"type": "string"},
+        "data": {"type": "string", "contentEncoding": "base64"}, "format": {"type": "string"}}},
+    "foxglove.PoseInFrame": {"type": "object", "properties": {
+        "timestamp": _TIME, "frame_id": {"type": "string"}, "pose": _POSE}},
+    "foxglove.Grid": {"type": "object", "properties": {
+        "timestamp": _TIME, "frame_id": {"type": "string"}, "pose": _POSE, "column_count": {"type": "integer"},
+        "cell_size": {"type": "object", "properties": {"x": {"type": "number"}, "y": {"type": "number"}}},
+        "row_stride": {"type": "integer"}, "cell_stride": {"type": "integer"},
+        "fields": {"type": "array", "items": {"type": "object", "properties": {
+            "name": {"type": "string"}, "offset": {"type": "integer"}, "type": {"type": "integer"}}}},
+        "data": {"type": "string", "contentEncoding": "base64"}}},
+}
+UINT8 = 1   # foxglove.NumericType
+
+
+def _stamp(ns: int) -> dict[str, int]:
+    return {"sec": ns // 10**9, "nsec": ns % 10**9}
+
+
+def _topic(prefix: str, key: str) -> tuple[str, str] | None:
+    tail = key[len(prefix) + 1:] if key.startswith(prefix + "/") else ""
+    if tail.startswith("robot/"):
+        tail = tail.rsplit("/", 1)[-1]
+    return _TOPICS.get(tail)
+
+
+def _grid(rows: list[str], cell_m: float, ns: int) -> dict[str, Any]:
+    free = np.array([[c != "@" for c in r] for r in rows], np.uint8)
+    h, w = free.shape
+    return {"timestamp": _stamp(ns), "frame_id": "floor",
+            "pose": {"position": {"x": 0.0, "y": -h * cell_m, "z": 0.0},
+                     "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
+            "column_count": w, "cell_size": {"x": cell_m, "y": cell_m}, "row_stride": w, "cell_stride": 1,
+            "fields": [{"name": "free", "offset": 0, "type": UINT8}],
+            # Grid rows grow along +y (north); the map's rows grow southwards.
+            "data": base64.b64encode(free[::-1].tobytes()).decode()}
+
+
+def _camera(frame: CameraFrame, ns: int) -> tuple[dict[str, Any], dict[str, Any]]:
+    image = {"timestamp": _stamp(ns), "frame_id": "camera", "format": frame.encoding,
+             "data": base64.b64encode(frame.png).decode()}
+    half = -frame.yaw_rad / 2   # NED yaw (clockwise from north) -> a rotation about z-up, from east
+    yaw = math.pi / 2 + 2 * half
+    pose = {"timestamp": _stamp(ns), "frame_id": "floor",
+            "pose": {"position": {"x": frame.east_m, "y": frame.north_m, "z": -frame.down_m},
+                     "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2), "w": math.cos(yaw / 2)}}}
+    return image, pose
+
+
+def write_mcap(path: Path, samples: Iterable[Sample], fleet_prefix: str, rows: list[str] | None,
+               cell_m: float) -> dict[str, int]:
+    """Write the recording; returns the message count per topic."""
+    from mcap.writer import Writer
+
+    samples = sorted(samples, key=lambda s: s.time_ns)
+    t0 = samples[0].time_ns if samples else 0
+    counts: dict[str, int] = {}
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start(profile="", library="uav-robots")
+        schemas: dict[str, int] = {}
+        channels: dict[str, int] = {}
+
+        def channel(topic: str, schema: str) -> int:
+            if schema not in schemas:
+                body = FOXGLOVE_SCHEMAS.get(schema)
+                data = (json.dumps(body) if body is not None
+                        else (SCHEMA_DIR / f"{schema}.schema.json").read_text()).encode()
+                schemas[schema] = w.register_schema(name=schema, encoding="jsonschema", data=data)
+            if topic not in channels:
+                channels[topic] = w.register_channel(topic=topic, message_encoding="json",
+                                                     schema_id=schemas[schema])
+            return channels[topic]
+
+        def put(topic: str, schema: str, ns: int, body: bytes | dict[str, Any]) -> None:
+            data = body if isinstance(body, bytes) else json.dumps(body, separators=(",", ":")).encode()
+            seq = counts.get(topic, 0)
+            w.add_message(channel(topic, schema), log_time=ns, publish_time=ns, data=data, sequence=seq)
+            counts[topic] = seq + 1
+
+        if rows:
+            put("/map", "foxglove.Grid", t0, _grid(rows, cell_m, t0))
+        for s in samples:
+            if s.key.endswith("/uav/frame"):
+                try:
+                    frame = decode(s.payload, CameraFrame)
+                except Exception:  # noqa: BLE001 - a recorder keeps what it can read
+                    continue
+                image, pose = _camera(frame, s.time_ns)
+                put("/uav/camera", "foxglove.CompressedImage", s.time_ns, image)
+                put("/uav/pose", "foxglove.PoseInFrame", s.time_ns, pose)
+                continue
+            topic = _topic(fleet_prefix, s.key)
+            if topic is not None:
+                put(topic[0], topic[1], s.time_ns, s.payload)
+        w.finish()
+    return counts
+
+
+@dataclass
+class Recording:
+    """What a replay needs, read back from mission.mcap."""
+    free: np.ndarray                                          # bool [rows, cols], True on the floor
+    cells: dict[int, dict[int, tuple[int, int]]] = field(default_factory=dict)   # robot -> tick -> cell
+    goals: dict[int, tuple[int, int]] = field(default_factory=dict)
+    paths: dict[int, list[tuple[int, int]]] = field(default_factory=dict)        # the latest plan's path
+    starts: dict[int, tuple[int, int]] = field(default_factory=dict)             # the first plan's start
+    ticks: int = 0
+    events: list[dict[str, Any]] = field(default_factory=list)
+    phases: list[tuple[int, str]] = field(default_factory=list)                   # (log time ns, phase)
+    images: list[tuple[int, bytes]] = field(default_factory=list)                 # (log time ns, JPEG)
+    poses: list[tuple[int, dict[str, float]]] = field(default_factory=list)       # (log time ns, UAV position)
+    tick_times: list[tuple[int, int]] = field(default_factory=list)              # (log time ns, k)
+    end: dict[str, Any] | None = None
+    counts: dict[str, int] = field(default_factory=dict)
+
+
+def read_mcap(path: Path) -> Recording:
+    from mcap.reader import make_reader
+
+    free = None
+    rec = Recording(np.zeros((0, 0), bool))
+    with open(path, "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages(log_time_order=True):
+            topic = channel.topic
+            rec.counts[topic] = rec.counts.get(topic, 0) + 1
+            if topic == "/uav/camera":
+                rec.images.append((message.log_time, base64.b64decode(json.loads(message.data)["data"])))
+                continue
+            body = json.loads(message.data.split(b"\0", 1)[0])
+            if topic == "/uav/pose":
+                p = body["pose"]["position"]
+                rec.poses.append((message.log_time, {"east_m": p["x"], "north_m": p["y"], "alt_m": p["z"]}))
+            elif topic == "/mission/end":
+                rec.end = {"completed": body["completed"], "reason": body.get("reason", "")}
+            elif topic == "/map":
+                grid = np.frombuffer(base64.b64decode(body["data"]), np.uint8)
+                free = grid.reshape(-1, body["column_count"])[::-1].astype(bool)
+            elif topic == "/fleet/state":
+                rec.cells.setdefault(body["robot"], {})[body["tick"]] = tuple(body["cell"])
+                rec.ticks = max(rec.ticks, body["tick"])
+            elif topic == "/fleet/plan":
+                rec.goals[body["robot"]] = tuple(body["goal"])
+                rec.paths[body["robot"]] = [tuple(c) for c in body["path"]]
+                rec.starts.setdefault(body["robot"], tuple(body["path"][0]))
+            elif topic == "/fleet/tick":
+                rec.ticks = max(rec.ticks, body["k"])
+                rec.tick_times.append((message.log_time, body["k"]))
+            elif topic == "/mission/status":
+                rec.phases.append((message.log_time, body["phase"]))
+            elif topic == "/mission/event":
+                rec.events.append(body)
+    if free is None:
+        raise ValueError(f"{path}: no /map channel: not a uav-robots recording")
+    rec.free = free
+    return rec

@@ -1,0 +1,146 @@
+"""replay.mp4 from mission.mcap: robots as coloured discs with their ids, trails, a tick counter and a legend.
+
+On a large floor a robot is far smaller than a readable disc, so the video shows the region the robots
+use (their cells, plans and goals, with a margin) and draws every disc at least `MIN_RADIUS_PX` whatever
+a cell's size on screen.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from uav_agent.visualize import FLOOR, SHELF, _palette
+
+from .recording import Recording
+
+VIDEO = "replay.mp4"
+MAX_SIDE_PX = 1400      # the map part of a frame, before the legend
+MIN_RADIUS_PX = 7
+TRAIL = 12              # ticks of trail behind each robot
+LEGEND_PX = 300
+FPS = 10
+FONT = cv2.FONT_HERSHEY_SIMPLEX
+
+
+def region(rec: Recording, margin: int = 3) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1), exclusive ends: every cell a robot stood on, planned or aimed at, with a margin."""
+    pts = [c for cells in rec.cells.values() for c in cells.values()]
+    pts += list(rec.goals.values()) + [c for p in rec.paths.values() for c in p]
+    h, w = rec.free.shape
+    if not pts:
+        return 0, 0, w, h
+    xs, ys = [p[0] for p in pts], [p[1] for p in pts]
+    return (max(0, min(xs) - margin), max(0, min(ys) - margin), min(w, max(xs) + margin + 1),
+            min(h, max(ys) + margin + 1))
+
+
+def layout(rec: Recording) -> tuple[tuple[int, int, int, int], int, int]:
+    """(region, pixels per cell, disc radius)."""
+    x0, y0, x1, y1 = region(rec)
+    s = max(1, min(24, MAX_SIDE_PX // max(x1 - x0, y1 - y0)))
+    return (x0, y0, x1, y1), s, max(MIN_RADIUS_PX, int(s * 0.42))
+
+
+def _positions(rec: Recording) -> dict[int, list[tuple[int, int]]]:
+    """Each robot's cell at ticks 0..ticks, holding its last reported cell where a state is missing."""
+    out = {}
+    for rid, by_tick in rec.cells.items():
+        # A robot reports a state after each tick; before its first, it stood on its plan's start.
+        last, seq = rec.starts.get(rid, by_tick[min(by_tick)]), []
+        for t in range(rec.ticks + 1):
+            last = by_tick.get(t, last)
+            seq.append(last)
+        out[rid] = seq
+    return out
+
+
+def render(rec: Recording, path: Path, fps: int = FPS) -> tuple[int, int, int]:
+    """Write the video; returns (frames, width, height)."""
+    (x0, y0, x1, y1), s, r = layout(rec)
+    free = rec.free[y0:y1, x0:x1]
+    base = np.where(free[..., None], np.array(FLOOR, np.uint8), np.array(SHELF, np.uint8))
+    base = cv2.resize(base, (free.shape[1] * s, free.shape[0] * s), interpolation=cv2.INTER_NEAREST)
+    pad = r + 2   # room for discs on the edge cells
+    base = cv2.copyMakeBorder(base, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=FLOOR)
+    mh, mw = base.shape[:2]
+    height = max(mh, 360) + (max(mh, 360) % 2)
+    width = mw + LEGEND_PX + (mw % 2)
+    ids = sorted(rec.cells)
+    colours = dict(zip(ids, _palette(len(ids))))
+
+    def px(c: tuple[int, int]) -> tuple[int, int]:
+        return (c[0] - x0) * s + s // 2 + pad, (c[1] - y0) * s + s // 2 + pad
+
+    for rid, goal in rec.goals.items():
+        if rid in colours:
+            cv2.circle(base, px(goal), r, colours[rid], 2, cv2.LINE_AA)
+    pos = _positions(rec)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
+    if not writer.isOpened():
+        raise RuntimeError(f"OpenCV cannot write {path} (mp4v)")
+    text_scale = max(0.35, r / 18)
+    try:
+        for t in range(rec.ticks + 1):
+            frame = np.full((height, width, 3), 255, np.uint8)
+            frame[:mh, :mw] = base
+            for rid in ids:
+                trail = np.array([px(c) for c in pos[rid][max(0, t - TRAIL):t + 1]], np.int32)
+                if len(trail) > 1:
+                    cv2.polylines(frame, [trail], False, colours[rid], max(2, r // 3), cv2.LINE_AA)
+            arrived = 0
+            for rid in ids:
+                c = pos[rid][t]
+                arrived += rec.goals.get(rid) == c
+                cv2.circle(frame, px(c), r, colours[rid], -1, cv2.LINE_AA)
+                cv2.circle(frame, px(c), r, (0, 0, 0), 1, cv2.LINE_AA)
+                _label(frame, str(rid), px(c), r, text_scale, colours[rid])
+            _legend(frame, mw + 10, t, rec.ticks, arrived, len(ids), (x0, y0, x1, y1), colours)
+            writer.write(frame)
+    finally:
+        writer.release()
+    return rec.ticks + 1, width, height
+
+
+def _label(frame: np.ndarray, label: str, centre: tuple[int, int], r: int, scale: float, colour) -> None:
+    """The id inside its disc: shrunk to fit, black or white, whichever reads on the disc's colour."""
+    (tw, th), _ = cv2.getTextSize(label, FONT, scale, 1)
+    if tw > 2 * r - 2:
+        scale *= (2 * r - 2) / tw
+        (tw, th), _ = cv2.getTextSize(label, FONT, scale, 1)
+    b, g, r_ = colour
+    ink = (0, 0, 0) if 0.114 * b + 0.587 * g + 0.299 * r_ > 110 else (255, 255, 255)
+    cv2.putText(frame, label, (centre[0] - tw // 2, centre[1] + th // 2), FONT, scale, ink, 1, cv2.LINE_AA)
+
+
+def _legend(frame: np.ndarray, x: int, t: int, ticks: int, arrived: int, n: int, box, colours) -> None:
+    lines = [(f"tick {t}/{ticks}", 0.8, 2), (f"on goal {arrived}/{n}", 0.6, 1),
+             (f"cells x {box[0]}-{box[2] - 1}, y {box[1]}-{box[3] - 1}", 0.45, 1),
+             ("disc: robot (id), ring: its goal", 0.45, 1), ("line: its last moves", 0.45, 1)]
+    y = 32
+    for text, scale, thick in lines:
+        cv2.putText(frame, text, (x, y), FONT, scale, (0, 0, 0), thick, cv2.LINE_AA)
+        y += int(34 * scale) + 8
+    per_col = max(1, (frame.shape[0] - y - 10) // 16)
+    for i, (rid, col) in enumerate(colours.items()):
+        cx, cy = x + 8 + (i // per_col) * 70, y + 8 + (i % per_col) * 16
+        if cx + 60 > frame.shape[1]:
+            break
+        cv2.circle(frame, (cx, cy), 6, col, -1, cv2.LINE_AA)
+        cv2.putText(frame, str(rid), (cx + 10, cy + 5), FONT, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+
+
+def timeline(rec: Recording) -> dict:
+    """The whole mission for the view's replay mode: cells per tick, plans, events, images with their tick."""
+    import base64
+    import bisect
+
+    times = [ns for ns, _ in sorted(rec.tick_times)]
+    poses = dict(rec.poses)
+    images = [{"tick": bisect.bisect_right(times, ns), "pose": poses.get(ns, {}),
+               "data": "data:image/jpeg;base64," + base64.b64encode(jpeg).decode()} for ns, jpeg in rec.images]
+    return {"ticks": rec.ticks, "robots": {str(r): [list(c) for c in cells] for r, cells in _positions(rec).items()},
+            "goals": {str(r): list(g) for r, g in rec.goals.items()},
+            "paths": {str(r): [list(c) for c in p] for r, p in rec.paths.items()},
+            "events": rec.events, "images": images, "end": rec.end}

@@ -1,0 +1,51 @@
+"""`uav-robots replay DIR`: replay.mp4 rendered again from DIR/mission.mcap."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from protocol.errors import UavRobotsError
+
+
+def add_replay_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("replay", help="render a recorded mission (DIR/mission.mcap) again",
+                              description="Read DIR/mission.mcap (written by `uav-robots run --out DIR`) and "
+                                          "write DIR/replay.mp4 from it; with --view, also serve the recorded "
+                                          "mission in the live view's page, with a time slider.")
+    p.add_argument("dir", help="a run's --out directory")
+    from .cli import add_view_arguments
+
+    add_view_arguments(p)
+    p.set_defaults(func=replay_command)
+    return p
+
+
+def replay_command(args: argparse.Namespace) -> int:
+    from .recording import MCAP, read_mcap
+    from .replay import VIDEO, render
+
+    directory = Path(args.dir)
+    if not (directory / MCAP).is_file():
+        raise UavRobotsError(f"{args.dir}: no {MCAP} there (write one with `uav-robots run --out {args.dir}`)")
+    try:
+        rec = read_mcap(directory / MCAP)
+    except Exception as exc:  # noqa: BLE001 - a damaged or foreign file is bad input
+        raise UavRobotsError(f"{directory / MCAP}: not a readable uav-robots recording: {exc}") from None
+    frames, w, h = render(rec, directory / VIDEO)
+    print(f"{directory / VIDEO}: {frames} frames, {w}x{h} px, ticks 0-{rec.ticks}, {len(rec.cells)} robots",
+          flush=True)
+    if args.view is not None:
+        from .replay import timeline
+        from .view import hold
+        from .view_server import ViewServer
+
+        try:
+            server = ViewServer(args.view, rec.free, timeline=timeline(rec))
+        except OSError as exc:
+            raise UavRobotsError(f"--view {args.view}: cannot serve there: {exc.strerror or exc}") from None
+        print(f"uav-robots: recorded mission at {server.url}", flush=True)
+        try:
+            hold(server.url, args.view_hold)
+        finally:
+            server.close()
+    return 0

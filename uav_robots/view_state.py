@@ -1,0 +1,96 @@
+"""What the live view shows, kept from the fleet's messages: robots, plans, goals, tick, phase, events, image.
+
+`FleetView.apply` takes one wire sample; `FleetView.delta` gives a client what changed since its last
+update (robots that moved, plans that changed, events it has not seen, the image if newer), so a browser
+gets per-tick deltas and a slow one simply gets fewer, larger ones.
+"""
+from __future__ import annotations
+
+import base64
+import json
+import threading
+from dataclasses import dataclass, field
+from typing import Any
+
+from protocol.messages import CameraFrame, decode
+
+
+@dataclass
+class Seen:
+    """What one client has been sent."""
+    robots: dict[int, tuple] = field(default_factory=dict)
+    plans: int = -1
+    events: int = 0
+    image: int = 0
+
+
+class FleetView:
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.robots: dict[int, tuple] = {}             # id -> (x, y, status)
+        self.goals: dict[int, list[int]] = {}
+        self.paths: dict[int, list[list[int]]] = {}
+        self.plan_version = 0
+        self.tick = 0
+        self.ticks = 0
+        self.phase = "connecting"
+        self.message = ""
+        self.events: list[dict[str, Any]] = []
+        self.image: str = ""                           # data: URL of the newest JPEG
+        self.image_version = 0
+        self.pose: dict[str, float] = {}
+        self.end: dict[str, Any] | None = None
+
+    def apply(self, key: str, payload: bytes) -> None:
+        tail = key.rsplit("/", 2)
+        kind = tail[-1]
+        try:
+            if kind == "frame":
+                f = decode(payload, CameraFrame)
+                with self._lock:
+                    self.image = f"data:image/{f.encoding};base64," + base64.b64encode(f.png).decode()
+                    self.image_version += 1
+                    self.pose = {"east_m": f.east_m, "north_m": f.north_m, "alt_m": -f.down_m}
+                return
+            body = json.loads(payload)
+        except Exception:  # noqa: BLE001 - a view shows what it can read
+            return
+        with self._lock:
+            if kind == "state":
+                self.robots[body["robot"]] = (*body["cell"], body.get("status", ""))
+                self.tick = max(self.tick, body["tick"])
+            elif kind == "plan":
+                rid = body["robot"]
+                self.goals[rid] = body["goal"]
+                self.paths[rid] = body["path"]
+                self.robots.setdefault(rid, (*body["path"][0], "planned"))
+                self.plan_version += 1
+            elif kind == "tick":
+                self.ticks = body["ticks"]
+            elif kind == "status" and tail[-2] == "mission":
+                self.phase, self.message = body["phase"], body.get("message", "")
+                self.ticks = body.get("ticks") or self.ticks
+            elif kind == "event" and tail[-2] == "mission":
+                self.events.append({k: body.get(k) for k in ("tick", "time_s", "kind", "robots", "what", "action")})
+            elif kind == "end" and tail[-2] == "mission":
+                self.end = {"completed": body["completed"], "reason": body.get("reason", "")}
+
+    def delta(self, seen: Seen) -> dict[str, Any]:
+        with self._lock:
+            out: dict[str, Any] = {"tick": self.tick, "ticks": self.ticks, "phase": self.phase,
+                                   "message": self.message, "end": self.end, "pose": self.pose}
+            moved = {str(r): list(v) for r, v in self.robots.items() if seen.robots.get(r) != v}
+            if moved:
+                out["robots"] = moved
+                seen.robots.update({r: v for r, v in self.robots.items()})
+            if seen.plans != self.plan_version:
+                out["goals"] = {str(r): g for r, g in self.goals.items()}
+                out["paths"] = {str(r): p for r, p in self.paths.items()}
+                seen.plans = self.plan_version
+            if seen.events < len(self.events):
+                out["events"] = self.events[seen.events:]
+                seen.events = len(self.events)
+            if seen.image != self.image_version:
+                out["image"] = self.image
+                seen.image = self.image_version
+            return out
