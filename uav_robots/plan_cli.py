@@ -140,7 +140,7 @@ def add_bench_parser(subparsers) -> argparse.ArgumentParser:
     from .bench import PAPER_SIZES
     p = subparsers.add_parser("bench", help="benchmarks: the paper's Table 2 and MovingAI instances",
                               description="Run the planning benchmarks; writes a markdown table and CSV files.")
-    sub = p.add_subparsers(dest="bench", metavar="{paper,movingai}", required=True)
+    sub = p.add_subparsers(dest="bench", metavar="{paper,movingai,secure}", required=True)
 
     def common(q: argparse.ArgumentParser, limit: float) -> None:
         q.add_argument("--time-limit", type=_positive_float, default=limit,
@@ -177,6 +177,8 @@ def add_bench_parser(subparsers) -> argparse.ArgumentParser:
     pm.add_argument("--planner", default=DEFAULT_PLANNER, help=f"{', '.join(PLANNERS)} (default {DEFAULT_PLANNER})")
     common(pm, 60.0)
     pm.set_defaults(func=cmd_bench)
+    from .secure_bench import add_secure_bench
+    add_secure_bench(sub)
     return p
 
 
