@@ -339,13 +339,13 @@ def open_session(name: str, listen: list[str] | None = None, connect: list[str] 
                  alone: str = "client", wait_s: float = 20.0) -> ZenohTransport:
     """The Zenoh session of one process, opened so that a signal is answered within about a second.
 
-    A config file or `listen` is opened as given. `connect` is retried in 1 s attempts for up to
+    A config file or `listen` is opened as given (`listen`/`connect` then replace the file's endpoints;
+    a client config is retried like `connect`). `connect` is retried in 1 s attempts for up to
     `wait_s` (a router may come up later), stopping early when `stop` is set. With none of them the
     process is on its own, as a simulator started alone: `alone="client"` joins the router on this
     machine, `"router"` becomes it, `"either"` joins one if it answers within a second, else becomes it.
     """
     from .config import DEFAULT_ENDPOINT, client_config, config_from_file, hub_config
-
 
     def opened(config: str, where: str, overrides: dict[str, Any] | None = None) -> ZenohTransport:
         t = ZenohTransport(config, name, overrides)

@@ -341,7 +341,7 @@ class World(Lifecycle):
         try:
             allowed = ids_of_move_key(self.keys, q.key)
         except UavRobotsError as exc:
-            allowed, why = set(), str(exc)
+            allowed, why = [], str(exc)
         else:
             why = f"{q.key} may not move robot(s) {sorted(set(robots) - set(allowed or robots))[:5]}"
         if allowed is None or set(robots) <= set(allowed):

@@ -7,6 +7,7 @@ import os
 import stat
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -17,9 +18,8 @@ from protocol.errors import MissionError
 from protocol.keys import Keys
 from protocol.messages import (Done, MissionEnd, MoveRequest, MoveResult, Plan, RobotState, Tick, WorldInfo,
                                WorldInfoRequest, decode, encode)
-from protocol.transport import MemoryBus, MemoryTransport, ZenohTransport, open_session
-from scenes import open_map
-from sim_world.world import World, WorldConfig
+from protocol.transport import ZenohTransport, open_session
+from test_world_service import mem_world  # noqa: F401 - the fixture: a world on an in-memory bus
 from uav_robots.secure_cli import make_fleet_dir, new_fleet, read_fleet_dir
 
 REPO = Path(__file__).resolve().parents[1]
@@ -163,19 +163,6 @@ def test_only_the_world_answers_world_queries(fleet_dir):
         assert served == []
 
 
-@pytest.fixture
-def mem_world(tmp_path):
-    m, s = open_map(tmp_path, [(0, 0), (1, 0), (5, 5)], [(7, 0), (7, 1), (5, 4)])
-    bus = MemoryBus()
-    world = World(WorldConfig(fleet="t", map=m, scen=s, robots=3, mavlink=None, move_batch_timeout_s=0.4),
-                  MemoryTransport(bus))
-    world.start()
-    client = MemoryTransport(bus)
-    yield world, client
-    client.close()
-    world.close()
-
-
 def test_the_world_moves_only_the_robots_the_key_names(mem_world):
     world, client = mem_world
     k = world.keys
@@ -248,8 +235,17 @@ def test_run_secure_uses_a_secure_init_directory_and_cleans_a_temporary_one(tmp_
     stdout, stderr = proc.communicate(timeout=240)
     assert proc.returncode == 0, stderr[-2000:]
     assert json.loads(stdout.strip().splitlines()[-1])["completed"]
-    before = set(Path("/tmp").glob("uav-robots-secure-*"))
+    tmp = Path(tempfile.gettempdir())
+    before = set(tmp.glob("uav-robots-secure-*"))
     proc = _run(["--secure", "--robots", "2", "--json", "--map", "random:width=10,height=8,density=0.1"])
     stdout, stderr = proc.communicate(timeout=240)
     assert proc.returncode == 0, stderr[-2000:]
-    assert set(Path("/tmp").glob("uav-robots-secure-*")) <= before
+    assert set(tmp.glob("uav-robots-secure-*")) <= before
+
+
+def test_the_cost_bench_runs_a_lockstep_barrier_both_ways(tmp_path):
+    """`uav-robots bench secure`'s transport part: ticks out and states back through the ACL'd router."""
+    from uav_robots.secure_bench import barrier_rate
+
+    assert barrier_rate(3, 20, None) > 0
+    assert barrier_rate(3, 20, tmp_path / "s") > 0
