@@ -249,3 +249,17 @@ def test_the_cost_bench_runs_a_lockstep_barrier_both_ways(tmp_path):
 
     assert barrier_rate(3, 20, None) > 0
     assert barrier_rate(3, 20, tmp_path / "s") > 0
+
+
+@pytest.mark.parametrize("args, words", [
+    (["secure", "init", "{d}", "--robots", "0"], "--robots must be in"),
+    (["secure", "init", "{d}", "--robots", "3", "--address", "a/b"], "give a host name or an IP address"),
+    (["secure", "init", "{d}", "--robots", "5000", "--robots-per-process", "1"], "at most 1024 identities"),
+    (["run", "--secure", "{d}"], "no fleet.json"),
+])
+def test_bad_security_input_is_one_line_before_anything_is_written(tmp_path, args, words):
+    d = tmp_path / "certs"
+    r = subprocess.run([sys.executable, "-m", "uav_robots", *[a.format(d=d) for a in args]], capture_output=True,
+                       text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert r.returncode == 2 and words in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not d.exists()

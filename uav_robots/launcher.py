@@ -240,6 +240,12 @@ def check_arguments(args) -> tuple[str, object]:
         made = read_fleet_dir(Path(args.secure))
         if made.robots != args.robots:
             raise UavRobotsError(f"--secure {args.secure} was made for {made.robots} robots: give --robots {made.robots}")
+    elif args.secure is not None:
+        from .secure_cli import MAX_ROBOT_PROCESSES
+
+        if len(robot_groups(args.robots, args.robots_per_process)) > MAX_ROBOT_PROCESSES:
+            raise UavRobotsError(f"--secure: at most {MAX_ROBOT_PROCESSES} robot processes (identities); "
+                                 f"host more robots per process (--robots-per-process)")
     name, free = resolve_map(args.map, args.seed)
     place(free, args.robots, args.seed)
     return name, free

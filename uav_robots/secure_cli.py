@@ -23,6 +23,9 @@ DEFAULT_PORT = 7447
 MANIFEST = "fleet.json"
 LOCAL_ADDRESSES = ["127.0.0.1", "localhost"]   # always in the router's certificate: local runs just work
 CONNECT_TIMEOUT_MS = 20_000
+# Robot processes (identities) per fleet: one ACL subject each, and one process per robot stops
+# scaling near 100 anyway (NOTES: lockstep rates); pools carry the larger fleets.
+MAX_ROBOT_PROCESSES = 1024
 
 
 @dataclass(frozen=True)
@@ -96,6 +99,9 @@ def new_fleet(fleet: str, robots: int, groups: list[list[int]], addresses: list[
     Keys(fleet)
     if not 1 <= robots <= MAX_ROBOTS:
         raise UavRobotsError(f"--robots must be in [1, {MAX_ROBOTS}], got {robots}")
+    if len(groups) > MAX_ROBOT_PROCESSES:
+        raise UavRobotsError(f"{len(groups)} robot processes: at most {MAX_ROBOT_PROCESSES} identities; "
+                             f"host more robots per process (--robots-per-process)")
     if not 1 <= port <= 65535:
         raise UavRobotsError(f"--port must be in [1, 65535], got {port}")
     for a in addresses:
