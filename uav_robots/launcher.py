@@ -138,7 +138,8 @@ class Launcher:
                     to_log=True)
         faults = [parse_fault(f) for f in a.fault if not f.startswith("slip:")]
         for group in self.groups:
-            ids = format_ids(group)
+            contiguous = group == list(range(group[0], group[-1] + 1))
+            ids = f"{group[0]}-{group[-1]}" if contiguous else format_ids(group)
             mine = [arg for f in faults if f.robot in group for arg in ("--fault", str(f))]
             self._spawn(f"robots-{group[0]}-{group[-1]}", "robot_agents", [*common, *self.session_args(robot_identity(group).name),
                                           "--ids", ids,
