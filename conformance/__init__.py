@@ -204,6 +204,7 @@ class FakeWorld(Waiter):
     def __post_init__(self) -> None:
         Waiter.__init__(self)
         self._handle = self.transport.serve(self.keys.move, self._on_move)
+        self._by_identity = self.transport.serve(self.keys.moves_by_identity, self._on_move)
         self._token = self.transport.announce(self.keys.alive_world)
 
     def _on_move(self, q: IncomingQuery) -> None:
@@ -242,6 +243,7 @@ class FakeWorld(Waiter):
     def close(self) -> None:
         self._token.close()
         self._handle.close()
+        self._by_identity.close()
 
 
 def robot_command(template: str, robot: int | list[int], fleet: str, endpoint: str) -> list[str]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 from .errors import UavRobotsError
 
@@ -22,21 +23,29 @@ CONNECT_TIMEOUT_MS = 20_000
 LEASE_MS = 10_000
 
 
-def hub_config(listen: list[str]) -> str:
-    return json.dumps({
+def hub_dict(listen: list[str]) -> dict[str, Any]:
+    return {
         "mode": "router",
         "listen": {"endpoints": listen},
         "scouting": {"multicast": {"enabled": False}, "delay": 0},
-    })
+    }
 
 
-def client_config(connect: list[str], timeout_ms: int = CONNECT_TIMEOUT_MS, lease_ms: int = LEASE_MS) -> str:
-    return json.dumps({
+def client_dict(connect: list[str], timeout_ms: int = CONNECT_TIMEOUT_MS, lease_ms: int = LEASE_MS) -> dict[str, Any]:
+    return {
         "mode": "client",
         "connect": {"endpoints": connect, "timeout_ms": timeout_ms},
         "scouting": {"multicast": {"enabled": False}},
         "transport": {"link": {"tx": {"lease": lease_ms}}},
-    })
+    }
+
+
+def hub_config(listen: list[str]) -> str:
+    return json.dumps(hub_dict(listen))
+
+
+def client_config(connect: list[str], timeout_ms: int = CONNECT_TIMEOUT_MS, lease_ms: int = LEASE_MS) -> str:
+    return json.dumps(client_dict(connect, timeout_ms, lease_ms))
 
 
 def config_from_file(path: str | Path) -> str:
@@ -47,11 +56,13 @@ def config_from_file(path: str | Path) -> str:
 
 
 def add_session_arguments(p: argparse.ArgumentParser, hub: bool = False) -> None:
-    """--connect / --listen / --zenoh-config, the same for every process (`hub`: it listens by default)."""
+    """--connect / --listen / --zenoh-config, the same for every process (`hub`: it listens by default).
+    With --zenoh-config, --connect or --listen replaces the file's endpoints: one file serves any address."""
     g = p.add_mutually_exclusive_group()
     g.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
                    help="join a Zenoh router at this endpoint" + ("" if hub else f" (default {DEFAULT_ENDPOINT})"))
     g.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
                    help="be the Zenoh router, listening here" + (f" (default {DEFAULT_ENDPOINT})" if hub else ""))
-    g.add_argument("--zenoh-config", default=None, metavar="FILE",
-                   help="a Zenoh JSON5 config file instead (TLS, access control, a remote router)")
+    p.add_argument("--zenoh-config", default=None, metavar="FILE",
+                   help="a Zenoh JSON5 config file (TLS, access control: see `uav-robots secure init`); "
+                        "--connect/--listen then replace its endpoints")

@@ -4,9 +4,10 @@ from __future__ import annotations
 import re
 import secrets
 from dataclasses import dataclass
+from typing import Sequence
 
 from .errors import UavRobotsError
-from .messages import MAX_ROBOT_ID
+from .messages import MAX_ROBOT_ID, MAX_ROBOTS
 
 ROOT = "uavr"
 ROBOT_ID_DIGITS = len(str(MAX_ROBOT_ID))
@@ -104,6 +105,15 @@ class Keys:
     def move(self) -> str:
         return f"{self.prefix}/world/move"
 
+    def move_as(self, ids: Sequence[int]) -> str:
+        """The move service asked by the robots `ids`, named in the key: access control lets an identity
+        ask only under its own ids, and the world judges only moves of the robots the key names."""
+        return f"{self.move}/{format_ids(ids)}"
+
+    @property
+    def moves_by_identity(self) -> str:
+        return f"{self.move}/*"
+
     @property
     def world_info(self) -> str:
         return f"{self.prefix}/world/info"
@@ -125,3 +135,50 @@ def robot_id_from_key(key: str) -> int | None:
                 and str(int(text)) == text):
             return int(text)
     return None
+
+
+def format_ids(ids: Sequence[int]) -> str:
+    """[0, 1, 2, 5] -> '0-2,5' (for log lines)."""
+    out: list[str] = []
+    ids = sorted(ids)
+    i = 0
+    while i < len(ids):
+        j = i
+        while j + 1 < len(ids) and ids[j + 1] == ids[j] + 1:
+            j += 1
+        out.append(str(ids[i]) if i == j else f"{ids[i]}-{ids[j]}")
+        i = j + 1
+    return ",".join(out)
+
+
+def parse_ids(text: str) -> list[int]:
+    """'0-3,7,10-11' -> [0, 1, 2, 3, 7, 10, 11]."""
+    ids: set[int] = set()
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        lo, sep, hi = part.partition("-")
+        try:
+            a, b = int(lo), int(hi) if sep else int(lo)
+        except ValueError:
+            raise UavRobotsError(f"robot ids {text!r}: {part!r} is not a number or a range like 0-49") from None
+        if a < 0 or b < a:
+            raise UavRobotsError(f"robot ids {text!r}: {part!r} is not a range of non-negative ids")
+        if b > MAX_ROBOT_ID or b - a + 1 + len(ids) > MAX_ROBOTS:
+            raise UavRobotsError(f"robot ids {text!r}: at most {MAX_ROBOTS} robots with ids up to {MAX_ROBOT_ID}")
+        ids.update(range(a, b + 1))
+    if not ids:
+        raise UavRobotsError(f"robot ids {text!r}: no id given")
+    return sorted(ids)
+
+
+MAX_IDS_LABEL = 4096   # characters of a move key's robot ids: bounded before parsing
+
+
+def ids_of_move_key(keys: Keys, key: str) -> list[int] | None:
+    """The robots a move query's key names: None for the plain `world/move` (no identity in the key).
+    Raises UavRobotsError for a key that names no valid ids."""
+    if key == keys.move:
+        return None
+    label = key[len(keys.move) + 1:] if key.startswith(keys.move + "/") else ""
+    if not label or len(label) > MAX_IDS_LABEL:
+        raise UavRobotsError(f"move key {key[:80]!r} does not name robot ids")
+    return parse_ids(label)

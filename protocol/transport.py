@@ -8,6 +8,7 @@ code in one process for fast tests.
 from __future__ import annotations
 
 import fnmatch
+import json
 import sys
 import threading
 import time
@@ -132,15 +133,25 @@ class _ZenohPending(PendingRequest):
         return [r.ok.payload.to_bytes() for r in self._replies if r.ok is not None]
 
 
+def zenoh_config(config_json5: str, overrides: dict[str, Any] | None = None) -> Any:
+    """A zenoh.Config from JSON5 text, with `overrides` ({"connect/endpoints": [...]}) inserted."""
+    import zenoh
+
+    try:
+        conf = zenoh.Config.from_json5(config_json5)
+        for path, value in (overrides or {}).items():
+            conf.insert_json5(path, json.dumps(value))
+    except Exception as exc:  # noqa: BLE001 - zenoh raises its own ZError
+        raise MissionError(f"zenoh config rejected: {str(exc).splitlines()[0]}") from None
+    return conf
+
+
 class ZenohTransport(Transport):
-    def __init__(self, config_json5: str, name: str = "session") -> None:
+    def __init__(self, config_json5: str, name: str = "session", overrides: dict[str, Any] | None = None) -> None:
         import zenoh
 
         self._z = zenoh
-        try:
-            conf = zenoh.Config.from_json5(config_json5)
-        except Exception as exc:  # noqa: BLE001 - zenoh raises its own ZError
-            raise MissionError(f"zenoh config rejected: {str(exc).splitlines()[0]}") from None
+        conf = zenoh_config(config_json5, overrides)
         try:
             self.session = zenoh.open(conf)
         except Exception as exc:  # noqa: BLE001
@@ -328,33 +339,50 @@ def open_session(name: str, listen: list[str] | None = None, connect: list[str] 
                  alone: str = "client", wait_s: float = 20.0) -> ZenohTransport:
     """The Zenoh session of one process, opened so that a signal is answered within about a second.
 
-    A config file or `listen` is opened as given. `connect` is retried in 1 s attempts for up to
+    A config file or `listen` is opened as given (`listen`/`connect` then replace the file's endpoints;
+    a client config is retried like `connect`). `connect` is retried in 1 s attempts for up to
     `wait_s` (a router may come up later), stopping early when `stop` is set. With none of them the
     process is on its own, as a simulator started alone: `alone="client"` joins the router on this
     machine, `"router"` becomes it, `"either"` joins one if it answers within a second, else becomes it.
     """
     from .config import DEFAULT_ENDPOINT, client_config, config_from_file, hub_config
 
-
-    def opened(config: str, where: str) -> ZenohTransport:
-        t = ZenohTransport(config, name)
+    def opened(config: str, where: str, overrides: dict[str, Any] | None = None) -> ZenohTransport:
+        t = ZenohTransport(config, name, overrides)
         t.where = where
         return t
 
+    def retried(attempt: Callable[[], ZenohTransport], endpoints: list[str], wait: float,
+                otherwise: Callable[[], ZenohTransport] | None = None) -> ZenohTransport:
+        deadline = time.monotonic() + wait
+        while True:
+            try:
+                return attempt()
+            except MissionError:
+                if stop is not None and stop.is_set():
+                    raise MissionError(f"{name}: stopped while waiting for a Zenoh router") from None
+                if time.monotonic() >= deadline:
+                    if otherwise is not None:
+                        return otherwise()
+                    raise MissionError(f"{name}: no Zenoh router at {', '.join(endpoints)} within {wait:g} s") from None
+
     if config_file:
-        return opened(config_from_file(config_file), f"config {config_file}")
+        text = config_from_file(config_file)
+        over: dict[str, Any] = {**({"listen/endpoints": listen} if listen else {}),
+                                **({"connect/endpoints": connect} if connect else {})}
+        where = f"config {config_file}"
+        if json.loads(zenoh_config(text).get_json("mode") or "null") != "client":
+            return opened(text, where, over)
+        # A client retries in short attempts, as with --connect, so that a signal is answered meanwhile.
+        endpoints = connect or json.loads(zenoh_config(text).get_json("connect/endpoints") or "[]")
+        return retried(lambda: opened(text, where, {**over, "connect/timeout_ms": 1000}), endpoints, wait_s)
     if listen or (not connect and alone == "router"):
         endpoints = listen or [DEFAULT_ENDPOINT]
         return opened(hub_config(endpoints), f"listening on {', '.join(endpoints)}")
     endpoints = connect or [DEFAULT_ENDPOINT]
-    deadline = time.monotonic() + (1.0 if not connect and alone == "either" else wait_s)
-    while True:
-        try:
-            return opened(client_config(endpoints, timeout_ms=1000), f"connected to {', '.join(endpoints)}")
-        except MissionError:
-            if stop is not None and stop.is_set():
-                raise MissionError(f"{name}: stopped while waiting for a Zenoh router") from None
-            if time.monotonic() >= deadline:
-                if not connect and alone == "either":
-                    return opened(hub_config([DEFAULT_ENDPOINT]), f"listening on {DEFAULT_ENDPOINT} (no router found)")
-                raise MissionError(f"{name}: no Zenoh router at {', '.join(endpoints)} within {wait_s:g} s") from None
+    if not connect and alone == "either":
+        return retried(lambda: opened(client_config(endpoints, timeout_ms=1000), f"connected to {DEFAULT_ENDPOINT}"),
+                       endpoints, 1.0, lambda: opened(hub_config([DEFAULT_ENDPOINT]),
+                                                      f"listening on {DEFAULT_ENDPOINT} (no router found)"))
+    return retried(lambda: opened(client_config(endpoints, timeout_ms=1000), f"connected to {', '.join(endpoints)}"),
+                   endpoints, wait_s)

@@ -20,9 +20,9 @@ from typing import Any, Callable, Sequence
 
 from protocol.config import add_session_arguments
 from protocol.errors import ProtocolError, UavRobotsError
-from protocol.keys import DEFAULT_FLEET, Keys, robot_id_from_key
+from protocol.keys import DEFAULT_FLEET, Keys, format_ids, parse_ids, robot_id_from_key  # noqa: F401 - re-exported
 from protocol.log import Throttled
-from protocol.messages import (MAX_ROBOT_ID, MAX_ROBOTS, Done, MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Plan, Tick, decode,
+from protocol.messages import (Done, MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Plan, Tick, decode,
                                encode)
 from protocol.process import Lifecycle
 from protocol.transport import Transport, open_session
@@ -36,39 +36,6 @@ JOIN_TIMEOUT_S = 2.0
 
 def _warn(text: str) -> None:
     print(f"warning: {text}", file=sys.stderr, flush=True)
-
-
-def format_ids(ids: Sequence[int]) -> str:
-    """[0, 1, 2, 5] -> '0-2,5' (for log lines)."""
-    out: list[str] = []
-    ids = sorted(ids)
-    i = 0
-    while i < len(ids):
-        j = i
-        while j + 1 < len(ids) and ids[j + 1] == ids[j] + 1:
-            j += 1
-        out.append(str(ids[i]) if i == j else f"{ids[i]}-{ids[j]}")
-        i = j + 1
-    return ",".join(out)
-
-
-def parse_ids(text: str) -> list[int]:
-    """'0-3,7,10-11' -> [0, 1, 2, 3, 7, 10, 11]."""
-    ids: set[int] = set()
-    for part in filter(None, (p.strip() for p in text.split(","))):
-        lo, sep, hi = part.partition("-")
-        try:
-            a, b = int(lo), int(hi) if sep else int(lo)
-        except ValueError:
-            raise UavRobotsError(f"robot ids {text!r}: {part!r} is not a number or a range like 0-49") from None
-        if a < 0 or b < a:
-            raise UavRobotsError(f"robot ids {text!r}: {part!r} is not a range of non-negative ids")
-        if b > MAX_ROBOT_ID or b - a + 1 + len(ids) > MAX_ROBOTS:
-            raise UavRobotsError(f"robot ids {text!r}: at most {MAX_ROBOTS} robots with ids up to {MAX_ROBOT_ID}")
-        ids.update(range(a, b + 1))
-    if not ids:
-        raise UavRobotsError(f"robot ids {text!r}: no id given")
-    return sorted(ids)
 
 
 class RobotPool(Lifecycle):
@@ -92,6 +59,8 @@ class RobotPool(Lifecycle):
         self._uav_seen = False
         self._worker = threading.Thread(target=self._loop, name="robot-pool", daemon=True)
         self.label = format_ids(list(self.machines))
+        # The key names who asks: under access control only this identity may ask there (docs/protocol.md, Security).
+        self.move_key = self.keys.move_as(list(self.machines))
         self.dropped = Throttled(f"robots {self.label}")   # undecodable or foreign messages: counted, rarely said
         self.faults = {f.robot: f for f in faults if f.robot in self.machines}
         self.dead: set[int] = set()
@@ -236,12 +205,12 @@ class RobotPool(Lifecycle):
             (r, st), = steps.items()
             self._seq[r] += 1
             req = MoveRequest(robot=r, tick=k, frm=st.frm, to=st.to, seq=self._seq[r])
-            res = self._result(r, k, self.transport.request(self.keys.move, encode(req), self.move_timeout_s))
+            res = self._result(r, k, self.transport.request(self.move_key, encode(req), self.move_timeout_s))
             return {r: res} if res is not None else {}
         self._batch_seq += 1
         batch = MoveBatch(tick=k, moves=[(r, st.frm, st.to) for r, st in steps.items()], seq=self._batch_seq)
         out: dict[int, MoveResult] = {}
-        for raw in self.transport.request(self.keys.move, encode(batch), self.move_timeout_s):
+        for raw in self.transport.request(self.move_key, encode(batch), self.move_timeout_s):
             try:
                 reply = decode(raw, MoveBatchResult)
             except ProtocolError as exc:

@@ -24,7 +24,7 @@ import numpy as np
 
 from protocol.config import add_session_arguments
 from protocol.errors import MissionError, ProtocolError, UavRobotsError
-from protocol.keys import DEFAULT_FLEET, Keys, robot_id_from_key
+from protocol.keys import DEFAULT_FLEET, Keys, ids_of_move_key, robot_id_from_key
 from protocol.log import Throttled
 from protocol.mapfile import Cell, format_rows, read_scen
 from protocol.messages import (CameraRequest, MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Record,
@@ -302,6 +302,7 @@ class World(Lifecycle):
             t.serve(k.world_info, self._on_info),
             t.serve(k.camera, self._on_camera),
             t.serve(k.move, self._on_move),
+            t.serve(k.moves_by_identity, self._on_move),
             t.serve(k.record, self._on_record),
             t.subscribe(k.mission_end, self._on_mission_end),
             t.watch_alive(k.alive_uav, self._on_uav),
@@ -377,13 +378,28 @@ class World(Lifecycle):
         q.reply(encode(WorldInfo(width=w, height=h, cell_size_m=c.cell_size_m, home_lat=c.home_lat,
                                  home_lon=c.home_lon, home_alt_m=c.home_alt_m, seq=self._next_seq(), **extra)))
 
+    def _asker_may_move(self, q: IncomingQuery, robots: list[int]) -> bool:
+        """A move asked under `world/move/<ids>` is judged only for those ids: access control binds an
+        identity to that key, so one robot cannot move another (the plain key carries no identity)."""
+        try:
+            allowed = ids_of_move_key(self.keys, q.key)
+        except UavRobotsError as exc:
+            allowed, why = [], str(exc)
+        else:
+            why = f"{q.key} may not move robot(s) {sorted(set(robots) - set(allowed or robots))[:5]}"
+        if allowed is None or set(robots) <= set(allowed):
+            return True
+        self.warn(f"refused a move query: {why}")
+        q.finish()
+        return False
+
     def _on_move(self, q: IncomingQuery) -> None:
         batch = b'"MoveBatch"' in q.payload[:200]
         if batch:
             self._on_move_batch(q)
             return
         req = self._decode(q, MoveRequest)
-        if req is None:
+        if req is None or not self._asker_may_move(q, [req.robot]):
             return
         seq = self._next_seq
 
@@ -395,7 +411,7 @@ class World(Lifecycle):
     def _on_move_batch(self, q: IncomingQuery) -> None:
         """A pool's moves in one query: each is judged like a MoveRequest, answered all at once."""
         batch = self._decode(q, MoveBatch)
-        if batch is None:
+        if batch is None or not self._asker_may_move(q, [r for r, _, _ in batch.moves]):
             return
         if not batch.moves:
             q.reply(encode(MoveBatchResult(tick=batch.tick, results=[], seq=self._next_seq())))

@@ -46,6 +46,9 @@ def _add_run(sub) -> None:
                      help="print only the summary, as one JSON object (report.json's, with the run's wall time)")
     p.add_argument("--timeout", type=float, default=900.0, help="give up after this many seconds")
     add_view_arguments(p)
+    p.add_argument("--secure", nargs="?", const="", default=None, metavar="DIR",
+                   help="mutual TLS and access control: a fresh CA and certificates in a temporary directory "
+                        "(kept in OUT/secure with --out), or those of DIR from `uav-robots secure init`")
     p.set_defaults(func=lambda a: importlib.import_module("uav_robots.launcher").run(a))
 
 
@@ -68,6 +71,7 @@ _SUBCOMMANDS = {
     "bench": ("uav_robots.plan_cli", "add_bench_parser"),
     "conformance": ("uav_robots.conformance_cli", "add_conformance_parser"),
     "replay": ("uav_robots.replay_cli", "add_replay_parser"),
+    "secure": ("uav_robots.secure_cli", "add_secure_parser"),
 }
 
 

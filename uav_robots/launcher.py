@@ -20,8 +20,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from protocol.errors import MissionError, UavRobotsError
-from protocol.keys import new_fleet_name
+from protocol.keys import format_ids, new_fleet_name
 from protocol.process import die_with_parent
+from protocol.security import robot_identity
 from robot_agents.faults import parse_fault
 
 GRACE_S = 3.0
@@ -66,6 +67,41 @@ class Launcher:
         self.out = Path(args.out).resolve() if args.out else Path(tempfile.mkdtemp(prefix="uav-robots-"))
         self.logs = self.out / "logs"
         self.logs.mkdir(parents=True, exist_ok=True)
+        self.groups = robot_groups(args.robots, args.robots_per_process)
+        self.secure_dir: Path | None = None       # certificates and configs, with --secure
+        self.secure_temporary = False
+        if args.secure is not None:
+            self._secure(args.secure)
+
+    def _secure(self, given: str) -> None:
+        """Mutual TLS and access control: every process gets its own config, certificate and key."""
+        from .secure_cli import make_fleet_dir, new_fleet, read_fleet_dir
+
+        port = free_port()
+        if given:
+            self.secure_dir = Path(given).resolve()
+            fleet = read_fleet_dir(self.secure_dir)
+            self.fleet, self.groups = fleet.fleet, fleet.groups
+            self.configs = {n.name: str(fleet.config(n.name)) for n in fleet.identities()}
+        else:
+            # Never beside the outputs a failed run keeps: keys leave with the run unless --out asks for them.
+            self.secure_temporary = not self.args.out
+            self.secure_dir = self.out / "secure" if self.args.out else Path(tempfile.mkdtemp(prefix="uav-robots-secure-"))
+            fleet = new_fleet(self.fleet, self.args.robots, self.groups, ["127.0.0.1"], port, self.secure_dir)
+            make_fleet_dir(self.secure_dir, fleet)
+            self.configs = {n.name: str(self.secure_dir / f"{n.name}.json5") for n in fleet.identities()}
+        self.endpoint = f"tls/127.0.0.1:{port}"
+
+    def session_args(self, name: str, hub: bool = False) -> list[str]:
+        """How one process opens its session: plain TCP, or its own secure config on this run's port."""
+        flag = "--listen" if hub else "--connect"
+        if self.secure_dir is None:
+            return [flag, self.endpoint]
+        return ["--zenoh-config", self.configs[name], flag, self.endpoint]
+
+    def cleanup(self) -> None:
+        if self.secure_temporary and self.secure_dir is not None:
+            shutil.rmtree(self.secure_dir, ignore_errors=True)
 
     def _spawn(self, name: str, package: str, argv: list[str], to_log: bool) -> Child:
         log = self.logs / f"{name}.log" if to_log else None
@@ -82,7 +118,7 @@ class Launcher:
     def start(self) -> Child:
         a = self.args
         common = ["--fleet", self.fleet]
-        uav = self._spawn("uav", "uav_agent", [*common, "--listen", self.endpoint, "--robots", str(a.robots),
+        uav = self._spawn("uav", "uav_agent", [*common, *self.session_args("uav", hub=True), "--robots", str(a.robots),
                                   "--mavlink", f"udpin://127.0.0.1:{self.udp}", "--out", str(self.out),
                                   *(["--assign", a.assign] if a.assign else []),
                                   "--connectivity", str(a.connectivity),
@@ -93,7 +129,7 @@ class Launcher:
                                   *(["--no-fallback"] if a.no_fallback else []),
                                   *(["--quiet"] if a.quiet or a.json else []),
                                   *(["--summary", "none"] if a.json else [])], to_log=False)
-        self._spawn("world", "sim_world", [*common, "--connect", self.endpoint, "--map", a.map,
+        self._spawn("world", "sim_world", [*common, *self.session_args("world"), "--map", a.map,
                               "--robots", str(a.robots), "--seed", str(a.seed),
                               "--connectivity", str(a.connectivity),
                               "--mavlink", f"udpout:127.0.0.1:{self.udp}", "--time-scale", str(a.time_scale),
@@ -104,10 +140,12 @@ class Launcher:
                               *[x for f in a.fault if f.startswith("slip:") for x in ("--fault", f)]],
                     to_log=True)
         faults = [parse_fault(f) for f in a.fault if not f.startswith("slip:")]
-        for group in robot_groups(a.robots, a.robots_per_process):
-            ids = f"{group[0]}-{group[-1]}"
+        for group in self.groups:
+            contiguous = group == list(range(group[0], group[-1] + 1))
+            ids = f"{group[0]}-{group[-1]}" if contiguous else format_ids(group)
             mine = [arg for f in faults if f.robot in group for arg in ("--fault", str(f))]
-            self._spawn(f"robots-{ids}", "robot_agents", [*common, "--connect", self.endpoint, "--ids", ids,
+            self._spawn(f"robots-{group[0]}-{group[-1]}", "robot_agents", [*common, *self.session_args(robot_identity(group).name),
+                                          "--ids", ids,
                                           "--connectivity", str(a.connectivity), *mine], to_log=True)
         return uav
 
@@ -207,6 +245,18 @@ def check_arguments(args) -> tuple[str, object]:
         from uav_agent.planning.registry import get_planner
 
         get_planner(args.planner)
+    if args.secure:
+        from .secure_cli import read_fleet_dir
+
+        made = read_fleet_dir(Path(args.secure))
+        if made.robots != args.robots:
+            raise UavRobotsError(f"--secure {args.secure} was made for {made.robots} robots: give --robots {made.robots}")
+    elif args.secure is not None:
+        from .secure_cli import MAX_ROBOT_PROCESSES
+
+        if len(robot_groups(args.robots, args.robots_per_process)) > MAX_ROBOT_PROCESSES:
+            raise UavRobotsError(f"--secure: at most {MAX_ROBOT_PROCESSES} robot processes (identities); "
+                                 f"host more robots per process (--robots-per-process)")
     name, free = resolve_map(args.map, args.seed)
     place(free, args.robots, args.seed)
     return name, free
@@ -261,11 +311,19 @@ def write_views(out: Path, samples: list, fleet: str, quiet: bool) -> None:
 def run(args) -> int:
     name, free = check_arguments(args)
     launcher = Launcher(args)
+    try:
+        return _run(args, launcher, name, free)
+    finally:
+        launcher.cleanup()
+
+
+def _run(args, launcher: "Launcher", name: str, free) -> int:
     t0 = time.perf_counter()
     code = 1
     if not (args.quiet or args.json):
         print(f"uav-robots: map {name} ({free.shape[1]}x{free.shape[0]}), {args.robots} robots, "
-              f"fleet {launcher.fleet}, zenoh {launcher.endpoint}, mavlink udp:{launcher.udp}"
+              f"fleet {launcher.fleet}, zenoh {launcher.endpoint}"
+              f"{' (mutual TLS, access control)' if launcher.secure_dir else ''}, mavlink udp:{launcher.udp}"
               + (f", ground station {args.gcs}" if args.gcs else ""), flush=True)
     observer = None
     view = open_view(args, free)

@@ -140,7 +140,7 @@ def add_bench_parser(subparsers) -> argparse.ArgumentParser:
     from .bench import PAPER_SIZES
     p = subparsers.add_parser("bench", help="benchmarks: the paper's Table 2 and MovingAI instances",
                               description="Run the planning benchmarks; writes a markdown table and CSV files.")
-    sub = p.add_subparsers(dest="bench", metavar="{paper,movingai,command}", required=True)
+    sub = p.add_subparsers(dest="bench", metavar="{paper,movingai,command,secure}", required=True)
 
     def common(q: argparse.ArgumentParser, limit: float) -> None:
         q.add_argument("--time-limit", type=_positive_float, default=limit,
@@ -187,6 +187,9 @@ def add_bench_parser(subparsers) -> argparse.ArgumentParser:
     pc.add_argument("--data", metavar="DIR", help="a benchmark data directory laid out like scenarios/data/")
     pc.add_argument("--out", default="bench-out", help="directory for the markdown and CSV (default bench-out/)")
     pc.set_defaults(func=cmd_bench)
+
+    from .secure_bench import add_secure_bench
+    add_secure_bench(sub)
     return p
 
 

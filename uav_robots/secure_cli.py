@@ -1,0 +1,146 @@
+"""`uav-robots secure init DIR`: a fleet's CA, one certificate and one Zenoh config per process.
+
+DIR gets `ca.pem`, then for each process (uav, world, robot-<id> or robots-<ids> for a
+pool) `<name>.pem`, `<name>.key` (0600) and `<name>.json5`, and `fleet.json` (what it
+was made for, read back by `uav-robots run --secure DIR`). The CA's own key is never
+written: a new process needs a new `secure init`, so no file in DIR can mint identities.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+from protocol.errors import UavRobotsError
+from protocol.keys import DEFAULT_FLEET, Keys
+from protocol.messages import MAX_ROBOTS
+from protocol.security import UAV, WORLD, Identity, TlsFiles, robot_identity, secure_client, secure_router
+
+DEFAULT_PORT = 7447
+MANIFEST = "fleet.json"
+LOCAL_ADDRESSES = ["127.0.0.1", "localhost"]   # always in the router's certificate: local runs just work
+CONNECT_TIMEOUT_MS = 20_000
+# Robot processes (identities) per fleet: one ACL subject each, and one process per robot stops
+# scaling near 100 anyway (NOTES: lockstep rates); pools carry the larger fleets.
+MAX_ROBOT_PROCESSES = 1024
+
+
+@dataclass(frozen=True)
+class Fleet:
+    """What a secure directory was made for."""
+    fleet: str
+    robots: int
+    groups: list[list[int]]          # robot ids per robot process
+    addresses: list[str]             # where clients reach the UAV's router (in its certificate)
+    port: int
+    files_at: str                    # the directory as the configs name it
+
+    def identities(self) -> list[Identity]:
+        return [Identity(UAV), Identity(WORLD), *(robot_identity(g) for g in self.groups)]
+
+    def config(self, name: str) -> Path:
+        return Path(self.files_at) / f"{name}.json5"
+
+
+def make_fleet_dir(out: Path, fleet: Fleet) -> None:
+    """Write everything for `fleet` into `out` (created 0700; keys 0600)."""
+    from .certs import Authority, write_private
+
+    out.mkdir(parents=True, exist_ok=True)
+    os.chmod(out, 0o700)
+    ca = Authority(f"uav-robots fleet {fleet.fleet} CA")
+    (out / "ca.pem").write_bytes(ca.cert_pem)
+    at = Path(fleet.files_at)
+    ids = fleet.identities()
+    hub_addresses = list(dict.fromkeys([*fleet.addresses, *LOCAL_ADDRESSES]))
+    for who in ids:
+        issued = ca.issue(who.name, hub_addresses if who.name == UAV else [])
+        (out / f"{who.name}.pem").write_bytes(issued.cert_pem)
+        write_private(out / f"{who.name}.key", issued.key_pem)
+        files = TlsFiles(str(at / "ca.pem"), str(at / f"{who.name}.pem"), str(at / f"{who.name}.key"))
+        if who.name == UAV:
+            cfg = secure_router(fleet.fleet, [f"tls/{_host(a)}:{fleet.port}" for a in _listen_on(fleet.addresses)],
+                                files, ids)
+        else:
+            cfg = secure_client([f"tls/{_host(fleet.addresses[0])}:{fleet.port}"], files, CONNECT_TIMEOUT_MS)
+        (out / f"{who.name}.json5").write_text(json.dumps(cfg, indent=1) + "\n")
+    (out / MANIFEST).write_text(json.dumps(asdict(fleet), indent=1) + "\n")
+
+
+def _host(address: str) -> str:
+    return f"[{address}]" if ":" in address else address
+
+
+def _listen_on(addresses: Sequence[str]) -> list[str]:
+    """Loopback only when every address is local; else every interface (TLS and the ACL guard the door)."""
+    return ["127.0.0.1"] if all(a in LOCAL_ADDRESSES for a in addresses) else ["0.0.0.0"]
+
+
+def read_fleet_dir(path: Path) -> Fleet:
+    try:
+        data: dict[str, Any] = json.loads((path / MANIFEST).read_text())
+        fleet = Fleet(**data)
+    except FileNotFoundError:
+        raise UavRobotsError(f"--secure {path}: no {MANIFEST}: make the directory with `uav-robots secure init`") from None
+    except (OSError, ValueError, TypeError) as exc:
+        raise UavRobotsError(f"--secure {path}: unreadable {MANIFEST}: {exc}") from None
+    missing = [f"{w.name}.{ext}" for w in fleet.identities() for ext in ("pem", "key", "json5")
+               if not (path / f"{w.name}.{ext}").is_file()]
+    if missing:
+        raise UavRobotsError(f"--secure {path}: missing {', '.join(missing[:3])}")
+    return fleet
+
+
+def new_fleet(fleet: str, robots: int, groups: list[list[int]], addresses: list[str], port: int,
+              files_at: Path) -> Fleet:
+    Keys(fleet)
+    if not 1 <= robots <= MAX_ROBOTS:
+        raise UavRobotsError(f"--robots must be in [1, {MAX_ROBOTS}], got {robots}")
+    if len(groups) > MAX_ROBOT_PROCESSES:
+        raise UavRobotsError(f"{len(groups)} robot processes: at most {MAX_ROBOT_PROCESSES} identities; "
+                             f"host more robots per process (--robots-per-process)")
+    if not 1 <= port <= 65535:
+        raise UavRobotsError(f"--port must be in [1, 65535], got {port}")
+    for a in addresses:
+        if not a or any(c in a for c in "/[] ,"):
+            raise UavRobotsError(f"--address {a!r}: give a host name or an IP address")
+    return Fleet(fleet, robots, groups, addresses or ["127.0.0.1"], port, str(files_at))
+
+
+def init_command(args: argparse.Namespace) -> int:
+    from .launcher import robot_groups
+
+    out = Path(args.dir)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise UavRobotsError(f"{args.dir}: exists and is not an empty directory (keys are never overwritten)")
+    if args.robots_per_process is not None and args.robots_per_process < 1:
+        raise UavRobotsError(f"--robots-per-process must be at least 1, got {args.robots_per_process}")
+    groups = robot_groups(args.robots, args.robots_per_process) if 1 <= args.robots <= MAX_ROBOTS else []
+    fleet = new_fleet(args.fleet, args.robots, groups, args.address, args.port,
+                      Path(args.files_at) if args.files_at else out.resolve())
+    make_fleet_dir(out, fleet)
+    print(f"secure fleet {fleet.fleet} in {out}: CA, {len(fleet.identities())} certificates and configs "
+          f"(uav router at {', '.join(fleet.addresses)} port {fleet.port})", flush=True)
+    return 0
+
+
+def add_secure_parser(subparsers: Any) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("secure", help="certificates and Zenoh configs for mutual TLS and access control")
+    sub = p.add_subparsers(dest="secure_command", required=True)
+    i = sub.add_parser("init", help="make a CA, a certificate, a key and a Zenoh config per process")
+    i.add_argument("dir", metavar="DIR", help="an empty or new directory")
+    i.add_argument("--robots", type=int, required=True, help="number of robots (ids 0..N-1)")
+    i.add_argument("--fleet", default=DEFAULT_FLEET, help=f"fleet name (default {DEFAULT_FLEET})")
+    i.add_argument("--robots-per-process", type=int, default=None,
+                   help="robots per robot process, as for `run` (default: 1 up to 64 robots, then 4 pools)")
+    i.add_argument("--address", action="append", default=[], metavar="HOST",
+                   help="an address the UAV's router is reached at (repeatable; the first is what clients "
+                        "dial; default 127.0.0.1)")
+    i.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"the router's TLS port (default {DEFAULT_PORT})")
+    i.add_argument("--files-at", default=None, metavar="PATH",
+                   help="where the files will be on the hosts that use them (default: DIR, absolute)")
+    i.set_defaults(func=init_command)
+    return p
