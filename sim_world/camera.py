@@ -26,6 +26,7 @@ import numpy as np
 from protocol.errors import MapError, MissionError
 from protocol.grid import Cell, on_grid
 from protocol.messages import CameraFrame
+from scenarios.landmarks import LandmarkSet
 
 # BGR colours. The floor is bright and colourless, shelves dark and brown, goals
 # saturated green, the world outside the grid dark blue: each is separable by
@@ -72,6 +73,7 @@ class CameraModel:
     blur_sigma: float = 0.0
     lighting: float = 0.0
     lighting_angle_deg: float = 0.0
+    landmark_spacing: int = 0   # cells between the surveyed landmarks the world places (0: none)
 
     def __post_init__(self) -> None:
         if self.width < 16 or self.height < 16:
@@ -93,6 +95,11 @@ class CameraModel:
             raise MissionError(f"camera: focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
         if self.noise_std < 0 or self.blur_sigma < 0 or not 0.0 <= self.lighting < 1.0:
             raise MissionError("camera: noise_std and blur_sigma must be >= 0 and lighting in [0, 1)")
+        if self.landmark_spacing != int(self.landmark_spacing) or not (
+                self.landmark_spacing == 0 or 4 <= self.landmark_spacing <= 10_000):
+            raise MissionError(f"camera: landmark_spacing {self.landmark_spacing} is not 0 (none) "
+                               "or a whole number of cells in [4, 10000]")
+        object.__setattr__(self, "landmark_spacing", int(self.landmark_spacing))
 
     @property
     def K(self) -> np.ndarray:
@@ -108,10 +115,12 @@ class CameraPose(NamedTuple):
 
 @dataclass(frozen=True, eq=False)
 class Scene:
-    """What is physically on the floor: the grid, robots by marker id, goal markers."""
+    """What is physically on the floor: the grid, robots by marker id, goal markers, and the
+    surveyed landmarks (on shelf tops and just outside the border; none = today's bare floor)."""
     free: np.ndarray                       # bool [height, width], True = floor
     robots: dict[int, Cell] = field(default_factory=dict)
     goals: list[Cell] = field(default_factory=list)
+    landmarks: LandmarkSet | None = None
 
     def __post_init__(self) -> None:
         free = np.asarray(self.free)
@@ -162,9 +171,51 @@ def _marker(robot_id: int, module_px: int) -> np.ndarray:
     return img
 
 
-def _texture(scene: Scene, x0: int, y0: int, x1: int, y1: int, ppc: int) -> np.ndarray:
-    cells = scene.free[y0:y1, x0:x1]
+@lru_cache(maxsize=8192)
+def _landmark_marker(family: str, marker_id: int, side_px: int) -> np.ndarray:
+    """A landmark's black square (border included) of exactly `side_px` texels: drawn at a whole
+    number of texels per module, then area-resampled, so its size in metres is exact at any scale."""
+    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, family))
+    bits = dictionary.markerSize + 2
+    module = max(1, math.ceil(side_px / bits))
+    img = cv2.aruco.generateImageMarker(dictionary, marker_id, bits * module, borderBits=1)
+    if img.shape[0] != side_px:
+        img = cv2.resize(img, (side_px, side_px), interpolation=cv2.INTER_AREA)
+    img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    img.flags.writeable = False
+    return img
+
+
+def _draw_landmarks(tex: np.ndarray, marks: LandmarkSet, cell_size_m: float, x0: int, y0: int, ppc: int) -> None:
+    """Each landmark: a white block (its quiet zone) with the black-bordered marker centred in it."""
+    if not marks.landmarks:
+        return
+    centres = marks.centres_cells(cell_size_m)
+    half = marks.block_cells / 2
+    th, tw = tex.shape[:2]
+    block_px = round(marks.block_cells * ppc)
+    side_px = max(1, round(marks.size_m / cell_size_m * ppc))
+    inset = (block_px - side_px) // 2
+    for (lid, _, _), (u, v) in zip(marks.landmarks, centres):
+        px, py = round((u - half - x0) * ppc), round((v - half - y0) * ppc)
+        if px >= tw or py >= th or px + block_px <= 0 or py + block_px <= 0:
+            continue
+        block = np.empty((block_px, block_px, 3), np.uint8)
+        block[:] = MARKER_QUIET_BGR
+        block[inset:inset + side_px, inset:inset + side_px] = _landmark_marker(marks.family, lid, side_px)
+        ox, oy = max(0, -px), max(0, -py)
+        ex, ey = min(block_px, tw - px), min(block_px, th - py)
+        tex[py + oy:py + ey, px + ox:px + ex] = block[oy:ey, ox:ex]
+
+
+def _texture(scene: Scene, x0: int, y0: int, x1: int, y1: int, ppc: int, cell_size_m: float = 1.0) -> np.ndarray:
+    h, w = scene.free.shape
+    cells = scene.free[max(0, y0):min(h, y1), max(0, x0):min(w, x1)]
     colours = np.where(cells[..., None], np.uint8(FLOOR_BGR), np.uint8(SHELF_BGR)).astype(np.uint8)
+    if x0 < 0 or y0 < 0 or x1 > w or y1 > h:   # the walls around the grid, where the ring of landmarks is
+        colours = np.pad(colours, ((max(0, -y0), max(0, y1 - h)), (max(0, -x0), max(0, x1 - w)), (0, 0)),
+                         constant_values=0)
+        colours[:, :] = np.where(_inside(x0, y0, x1, y1, w, h)[..., None], colours, np.uint8(OUTSIDE_BGR))
     tex = cv2.resize(colours, (colours.shape[1] * ppc, colours.shape[0] * ppc), interpolation=cv2.INTER_NEAREST_EXACT)
     shift = 4  # sub-pixel circle centres
     for gx, gy in scene.goals:
@@ -181,7 +232,14 @@ def _texture(scene: Scene, x0: int, y0: int, x1: int, y1: int, ppc: int) -> np.n
                 tex[py + unit:py + (CELL_UNITS - 1) * unit, px + unit:px + (CELL_UNITS - 1) * unit] = _marker(rid, unit)
             else:   # seen from so far that a module is under a texture pixel: a dark blob is all there is
                 tex[py + ppc // 4:py + ppc - ppc // 4, px + ppc // 4:px + ppc - ppc // 4] = 0
+    if scene.landmarks is not None:
+        _draw_landmarks(tex, scene.landmarks, cell_size_m, x0, y0, ppc)
     return tex
+
+
+def _inside(x0: int, y0: int, x1: int, y1: int, w: int, h: int) -> np.ndarray:
+    xs, ys = np.arange(x0, x1), np.arange(y0, y1)
+    return ((xs >= 0) & (xs < w))[None, :] & ((ys >= 0) & (ys < h))[:, None]
 
 
 @lru_cache(maxsize=8)
@@ -234,10 +292,12 @@ def render(scene: Scene, pose: CameraPose | tuple, model: CameraModel, cell_size
     corners = np.array([[[0, 0]], [[model.width - 1, 0]], [[0, model.height - 1]],
                         [[model.width - 1, model.height - 1]]], dtype=np.float64)
     floor = cv2.perspectiveTransform(corners, np.linalg.inv(H)).reshape(-1, 2)
-    x0 = max(0, math.floor(floor[:, 0].min()) - 1)
-    y0 = max(0, math.floor(floor[:, 1].min()) - 1)
-    x1 = min(w, math.ceil(floor[:, 0].max()) + 1)
-    y1 = min(h, math.ceil(floor[:, 1].max()) + 1)
+    # Landmarks in the ring lie up to one block outside the grid: the texture covers them too.
+    pad = scene.landmarks.block_cells if scene.landmarks is not None and scene.landmarks.landmarks else 0
+    x0 = max(-pad, math.floor(floor[:, 0].min()) - 1)
+    y0 = max(-pad, math.floor(floor[:, 1].min()) - 1)
+    x1 = min(w + pad, math.ceil(floor[:, 0].max()) + 1)
+    y1 = min(h + pad, math.ceil(floor[:, 1].max()) + 1)
     if x0 >= x1 or y0 >= y1:
         outside = np.empty((model.height, model.width, 3), np.uint8)
         outside[:] = OUTSIDE_BGR
@@ -245,7 +305,7 @@ def render(scene: Scene, pose: CameraPose | tuple, model: CameraModel, cell_size
     image_ppc = min(model.fx, model.fy) * cell_size_m / -pose[2]
     # A view of a huge floor from very high: keep the texture within OpenCV's comfort.
     ppc = max(1, min(_texture_ppc(image_ppc), MAX_TEXTURE_PX // max(x1 - x0, y1 - y0)))
-    tex = _texture(scene, x0, y0, x1, y1, ppc)
+    tex = _texture(scene, x0, y0, x1, y1, ppc, cell_size_m)
     # Texture pixel centre (i, j) is floor point (x0 + (i + 0.5)/ppc, y0 + (j + 0.5)/ppc) cells.
     tex_to_floor = np.array([[1 / ppc, 0, x0 + 0.5 / ppc], [0, 1 / ppc, y0 + 0.5 / ppc], [0, 0, 1]])
     image = cv2.warpPerspective(tex, H @ tex_to_floor, (model.width, model.height), flags=cv2.INTER_LINEAR,

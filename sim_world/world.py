@@ -30,6 +30,7 @@ from protocol.messages import (CameraRequest, MissionEnd, MoveBatch, MoveBatchRe
                                RecordRequest, WorldInfo, WorldInfoRequest, decode, encode)
 from protocol.process import Lifecycle
 from protocol.transport import IncomingQuery, Transport, open_session
+from scenarios.landmarks import LandmarkSet, place_landmarks
 from scenarios.maps import place, resolve_map
 
 from .moves import MoveJudge
@@ -226,6 +227,7 @@ class World(Lifecycle):
         self.cfg = cfg
         self.keys = Keys(cfg.fleet)
         self.truth = build_truth(cfg)
+        self.landmarks: LandmarkSet | None = None
         self.judge = MoveJudge(self.truth.free, dict(self.truth.starts), cfg.connectivity,
                                skid_prob=cfg.slip, seed=cfg.seed)
         self.desk: MoveDesk | None = None
@@ -251,6 +253,12 @@ class World(Lifecycle):
                 self.camera_model = CameraModel(**cfg.camera)
             except TypeError as exc:
                 raise UavRobotsError(f"camera options: {exc}") from None
+        else:
+            from .camera import CameraModel
+            self.camera_model = CameraModel()
+        spacing = self.camera_model.landmark_spacing
+        if spacing:
+            self.landmarks = place_landmarks(self.truth.free, cfg.cell_size_m, spacing)
         if cfg.mavlink:
             from .vehicle import Vehicle, VehicleConfig
             self.vehicle = Vehicle(VehicleConfig(url=cfg.mavlink, home_lat=cfg.home_lat, home_lon=cfg.home_lon,
@@ -331,8 +339,12 @@ class World(Lifecycle):
             return
         h, w = self.truth.free.shape
         c = self.cfg
+        marks = self.landmarks
+        extra: dict[str, Any] = {}
+        if marks is not None:
+            extra = dict(landmark_family=marks.family, landmark_size_m=marks.size_m, landmarks=list(marks.landmarks))
         q.reply(encode(WorldInfo(width=w, height=h, cell_size_m=c.cell_size_m, home_lat=c.home_lat,
-                                 home_lon=c.home_lon, home_alt_m=c.home_alt_m, seq=self._next_seq())))
+                                 home_lon=c.home_lon, home_alt_m=c.home_alt_m, seq=self._next_seq(), **extra)))
 
     def _on_move(self, q: IncomingQuery) -> None:
         batch = b'"MoveBatch"' in q.payload[:200]
@@ -438,12 +450,12 @@ class World(Lifecycle):
     def capture(self):
         from .camera import CameraModel, Scene, encode_frame, render
 
-        if self.camera_model is None:
+        if self.camera_model is None:   # never started (tests of capture alone)
             self.camera_model = CameraModel()
         assert self.desk is not None
         with self.desk.cv:
             robots = dict(self.judge.positions)
-        scene = Scene(self.truth.free, robots, list(self.truth.goals))
+        scene = Scene(self.truth.free, robots, list(self.truth.goals), self.landmarks)
         pose = self.camera_pose()
         image = render(scene, pose, self.camera_model, self.cfg.cell_size_m, seed=self._next_seq())
         t = self.vehicle.sim_time_s if self.vehicle is not None else time.monotonic() - self._t0
