@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from protocol.errors import MissionError, ProtocolError
+from protocol.errors import MissionError, PlanningError, ProtocolError
 from protocol.grid import Cell
 from protocol.keys import Keys
 from protocol.messages import (CameraFrame, CameraRequest, MissionEnd, MissionStatus, Plan, Record, RecordRequest, Tick,
@@ -30,8 +30,8 @@ from .watch import VehicleWatch
 
 QUERY_TIMEOUT_S = 10.0
 ABORT_LAND_TIMEOUT_S = 60.0
-RELOOK_ROUNDS = 2          # closer looks at markers whose id did not decode
-RELOOK_MAX_CELLS = 20
+RELOOK_ROUNDS = 2          # closer looks at unreadable markers, unsure cells, robots that may hide a goal
+RELOOK_MAX_CELLS = 200
 RELOOK_MIN_ALT_M = 3.0
 MONITOR_FIRST = 25         # auto monitoring: the first image after this many ticks ...
 MONITOR_SHARE = 0.2        # ... then whenever the images so far cost at most this share of execution time
@@ -183,6 +183,8 @@ class Mission:
                                   lambda: f"no world on fleet {self.cfg.fleet} within {self.cfg.startup_timeout_s:g} s")
             info = _query(self.transport, self.keys.world_info, WorldInfoRequest(seq=self._next()), WorldInfo, "info")
             self.info = info
+            from .perception import Landmarks
+            self.landmarks = Landmarks.from_info(info)
             self._warm = threading.Thread(target=self._warm_up_planner, name="planner-warm-up", daemon=True)
             self._warm.start()
             self.flight = Flight(self.cfg.mavlink_url)
@@ -245,7 +247,7 @@ class Mission:
         self._status("takeoff", message=f"arming and climbing over MAVLink ({self.cfg.mavlink_url})")
         self.flight.arm()
         self.uav["armed"] = True
-        first = self._capture()  # on the ground: only to learn the camera's intrinsics
+        first = self._camera = self._capture()  # on the ground: only to learn the camera's intrinsics
         self.frames.clear()
         poses = self._poses = survey_poses(self.info.width, self.info.height, self.info.cell_size_m, first,
                                            min_px_per_cell=self.cfg.min_px_per_cell)
@@ -279,41 +281,54 @@ class Mission:
                                           f"within {self.cfg.startup_timeout_s:g} s")
         with self.fleet.cv:
             known = set(self.fleet.alive) or None
+        from .perception.verdict import raise_if_missing
+
         self._status("perceive", message=f"{len(self.frames)} image(s) through OpenCV")
         model = self._see(self.frames, known)
-        if model.unseen:
-            raise MissionError(f"perception: {model.unseen} cells were not seen by any image")
-        if known is not None and set(model.robots) != known:
-            raise MissionError(f"perception: robots {sorted(known - set(model.robots))[:10]} are alive on the network "
-                               f"but not seen ({len(model.unidentified)} unreadable markers)")
-        if expected is not None and len(model.robots) != expected:
-            raise MissionError(f"perception found {len(model.robots)} robots, the mission expects {expected}")
-        if len(model.goals) != len(model.robots):
-            raise MissionError(f"perception found {len(model.robots)} robots but {len(model.goals)} goals")
         self.perception_warnings = model.warnings
+        self.perception_frames = model.frames
+        raise_if_missing(model, known, expected)
         self.clock.lap("perceive")
         return model
 
-    def _see(self, frames: list[CameraFrame], known: set[int] | None):
-        """Perceive `frames`; markers whose id did not decode get a closer look from lower down."""
+    def _perceive_frames(self, frames: list[CameraFrame], known: set[int] | None):
         from .perception import perceive
 
-        model = perceive(frames, self.info.width, self.info.height, self.info.cell_size_m, known_ids=known)
+        return perceive(frames, self.info.width, self.info.height, self.info.cell_size_m, known_ids=known,
+                        landmarks=self.landmarks)
+
+    def _see(self, frames: list[CameraFrame], known: set[int] | None, for_map: bool = True):
+        """Perceive `frames`; what they leave in doubt gets a closer look from lower down: markers
+        whose id did not decode, unsure cells (before they are taken for obstacles), and, when
+        fewer goals than robots were seen, the robots (one may stand on a goal and hide most of it)."""
+        from .perception.relook import hover_points
+
+        model = self._perceive_frames(frames, known)
         for attempt in range(1, RELOOK_ROUNDS + 1):
             missing = sorted(set(known or ()) - set(model.robots))
-            if not model.unidentified or not missing:
+            targets = set(model.unidentified) if missing or known is None else set()
+            if for_map:   # a fresh look for robots only (verify, recover) needs no map or goals
+                targets |= set(model.unsure)
+            if for_map and len(model.goals) < len(model.robots):
+                targets |= set(model.robots.values())
+            if not targets:
                 break
-            cells = model.unidentified[:RELOOK_MAX_CELLS]
-            self.progress.phase("perceive", f"{len(cells)} unreadable marker(s): a closer look (round {attempt})")
-            scale = 2.0 ** attempt
-            for x, y in cells:
-                c = self.info.cell_size_m
-                alt = max(RELOOK_MIN_ALT_M, self._survey_alt / scale)
-                self.flight.goto(-(y + 0.5) * c, (x + 0.5) * c, alt)
+            cells = sorted(targets)[:RELOOK_MAX_CELLS]
+            c = self.info.cell_size_m
+            alt = max(RELOOK_MIN_ALT_M, self._survey_alt / 2.0 ** attempt)
+            here = self.flight.position_ned()
+            points = hover_points(cells, c, alt, self._camera.width, self._camera.height, self._camera.fx,
+                                  self._camera.fy, (here[0], here[1]))
+            self.progress.phase("perceive", f"{len(cells)} cell(s) in doubt ({len(model.unidentified)} unreadable "
+                                            f"markers, {len(model.unsure)} unsure, {len(model.robots)} robots / "
+                                            f"{len(model.goals)} goals): {len(points)} closer look(s) from "
+                                            f"{alt:.1f} m (round {attempt})")
+            for north, east in points:
+                self.flight.goto(north, east, alt)
                 frame = self._capture()
                 if frames is not self.frames:
                     frames.append(frame)
-            model = perceive(frames, self.info.width, self.info.height, self.info.cell_size_m, known_ids=known)
+            model = self._perceive_frames(frames, known)
             self.flight.goto(*self._hover_ned)
         return model
 
@@ -324,7 +339,7 @@ class Mission:
             self.flight.goto(north, east, alt)
             frames.append(self._capture())
         self.flight.goto(*self._hover_ned)
-        model = self._see(frames, set(self.ids))
+        model = self._see(frames, set(self.ids), for_map=False)
         return {r: tuple(c) for r, c in model.robots.items()}
 
     def _plan(self, model):
@@ -338,9 +353,18 @@ class Mission:
                                         "later runs load numba's cache)")
         self._warm.join()
         self._status("plan", message=f"{len(ids)} robots, planner {planner}, assignment {self.cfg.assign}")
-        result = plan_mission(model.free, [model.robots[i] for i in ids], list(model.goals), planner=planner,
-                              assign=self.cfg.assign, connectivity=self.cfg.connectivity,
-                              time_limit=self.cfg.time_limit_s, fallback=self.cfg.fallback, seed=self.cfg.seed)
+        try:
+            result = plan_mission(model.free, [model.robots[i] for i in ids], list(model.goals), planner=planner,
+                                  assign=self.cfg.assign, connectivity=self.cfg.connectivity,
+                                  time_limit=self.cfg.time_limit_s, fallback=self.cfg.fallback, seed=self.cfg.seed)
+        except PlanningError:
+            from .perception.verdict import explain_unplannable
+
+            # Robots or goals walled in by what the camera read as shelf: a perception failure.
+            why = explain_unplannable(model, self.cfg.connectivity)
+            if why is not None:
+                raise why from None
+            raise
         for note in result.notes:
             self.progress.phase("plan", note)
         self.ids = ids
@@ -457,7 +481,7 @@ class Mission:
         t = time.perf_counter()
         frame = self._capture()
         model = perceive([frame], self.info.width, self.info.height, self.info.cell_size_m,
-                         known_ids=set(self.plan.ids))
+                         known_ids=set(self.plan.ids), landmarks=self.landmarks)
         off = sorted(r for r, c in model.robots.items() if r in self.plan.paths and tuple(c) != self.plan.cell(r, k))
         self.clock.timings["monitor"] = round(self.clock.timings.get("monitor", 0.0) + time.perf_counter() - t, 4)
         self.monitored += 1
@@ -669,6 +693,8 @@ class Mission:
             "perceived": None if model is None else {
                 "rows": format_rows(model.free), "robots": {str(i): list(c) for i, c in sorted(model.robots.items())},
                 "goals": [list(g) for g in model.goals], "images": len(self.frames),
+                "unsure": [list(c) for c in model.unsure],
+                "registration": _registration_summary(getattr(self, "perception_frames", [])),
                 "warnings": getattr(self, "perception_warnings", [])},
             "truth": record.truth if record else None,
             "uav": self.uav,
@@ -698,6 +724,15 @@ class Mission:
                 write_report(self.cfg.out, self.report)
         except Exception as exc:  # noqa: BLE001 - the report must not hide the abort's own error
             self.progress.phase("abort", f"could not write the report: {exc}")
+
+
+def _registration_summary(frames) -> dict[str, Any]:
+    """How the survey's images were placed on the floor: by landmarks or by the pose estimate alone."""
+    errors = [f.reprojection_px for f in frames if f.source == "landmarks" and f.reprojection_px is not None]
+    return {"by_landmarks": sum(f.source == "landmarks" for f in frames),
+            "by_estimate": sum(f.source != "landmarks" for f in frames),
+            "reprojection_px_max": round(max(errors), 3) if errors else None,
+            "reprojection_px_median": round(sorted(errors)[len(errors) // 2], 3) if errors else None}
 
 
 def exit_code(report: dict[str, Any]) -> int:

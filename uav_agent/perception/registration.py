@@ -32,7 +32,7 @@ from .frames import intrinsics
 MIN_LANDMARKS = 2          # one small marker pins the position, not the tilt
 RANSAC_PX = 3.0            # homography inlier threshold
 MAX_REPROJECTION_PX = 2.5  # an accepted registration's RMS error over its inliers
-QUIET_ZONE = 1.5           # a landmark's white surround, as a multiple of its black square's side
+QUIET_ZONE = 1 / 0.75      # a landmark's white block, as a multiple of its black square's side
 
 # Camera axes (columns) in the vehicle's body frame (x forward, y right, z down):
 # a nadir camera whose image right is the body's right and image up its nose.
@@ -65,8 +65,9 @@ class Landmarks:
         out: set[Cell] = set()
         for centres in self.by_id.values():
             for east, north in centres:
-                u0, u1 = (east - half) / cell_size_m, (east + half) / cell_size_m
-                v0, v1 = (-north - half) / cell_size_m, (-north + half) / cell_size_m
+                # A hair inside the block, so that a block edge on a cell edge takes no extra cell.
+                u0, u1 = (east - half) / cell_size_m + 1e-6, (east + half) / cell_size_m - 1e-6
+                v0, v1 = (-north - half) / cell_size_m + 1e-6, (-north + half) / cell_size_m - 1e-6
                 for x in range(max(0, math.floor(u0)), min(width, math.ceil(u1))):
                     for y in range(max(0, math.floor(v0)), min(height, math.ceil(v1))):
                         out.add((x, y))
