@@ -30,9 +30,10 @@ from protocol.messages import (CameraRequest, MissionEnd, MoveBatch, MoveBatchRe
                                RecordRequest, WorldInfo, WorldInfoRequest, decode, encode)
 from protocol.process import Lifecycle
 from protocol.transport import IncomingQuery, Transport, open_session
-from scenarios.landmarks import LandmarkSet, place_landmarks
+from scenarios.landmarks import LandmarkSet
 from scenarios.maps import place, resolve_map
 
+from .camera.model import DEFAULT_CAMERA_PRESET, camera_options
 from .moves import MoveJudge
 
 # PX4 SITL's default home: a field near Zurich. The grid's top-left corner is there.
@@ -228,6 +229,7 @@ class World(Lifecycle):
         self.keys = Keys(cfg.fleet)
         self.truth = build_truth(cfg)
         self.landmarks: LandmarkSet | None = None
+        self.estimator: Any = None
         self.judge = MoveJudge(self.truth.free, dict(self.truth.starts), cfg.connectivity,
                                skid_prob=cfg.slip, seed=cfg.seed)
         self.desk: MoveDesk | None = None
@@ -256,13 +258,14 @@ class World(Lifecycle):
         else:
             from .camera import CameraModel
             self.camera_model = CameraModel()
-        spacing = self.camera_model.landmark_spacing
-        if spacing:
-            self.landmarks = place_landmarks(self.truth.free, cfg.cell_size_m, spacing)
+        from .camera import PoseEstimator, scene_landmarks
+        self.landmarks = scene_landmarks(self.truth.free, cfg.cell_size_m, self.camera_model)
+        self.estimator = PoseEstimator(self.camera_model, cfg.seed)
         if cfg.mavlink:
             from .vehicle import Vehicle, VehicleConfig
             self.vehicle = Vehicle(VehicleConfig(url=cfg.mavlink, home_lat=cfg.home_lat, home_lon=cfg.home_lon,
-                                                 home_alt_m=cfg.home_alt_m, time_scale=cfg.time_scale))
+                                                 home_alt_m=cfg.home_alt_m, time_scale=cfg.time_scale,
+                                                 hover_wobble_deg=self.camera_model.wobble_deg, seed=cfg.seed))
             self.vehicle.start()
         if self.transport is None:
             c = self.cfg
@@ -436,30 +439,39 @@ class World(Lifecycle):
             self.warn(f"camera failed: {type(exc).__name__}: {exc}")
             q.finish()
 
-    def camera_pose(self) -> tuple[float, float, float, float]:
-        """The camera's pose in the grid's NED frame: the vehicle's, lifted by the mount height."""
+    def camera_view(self):
+        """The camera's true pose and motion in the grid's NED frame: the vehicle's, lifted by the mount height."""
+        from .camera import VehicleView
         if self.vehicle is None:
             # No vehicle (tests of the services): a fixed camera over the centre that sees the whole floor.
             h, w = self.truth.free.shape
             c, m = self.cfg.cell_size_m, self.camera_model
             alt = 1.1 * max(w * c * m.fx / m.width, h * c * m.fy / m.height)
-            return (-h * c / 2, w * c / 2, -alt, 0.0)
-        n, e, d, yaw = self.vehicle.pose()
-        return (n, e, d - self.cfg.camera_height_m, yaw)
+            return VehicleView(-h * c / 2, w * c / 2, -alt, 0.0)
+        st = self.vehicle.state()
+        n, e, d = st.pos
+        return VehicleView(n, e, d - self.cfg.camera_height_m, st.yaw, st.roll, st.pitch, *st.vel)
+
+    def camera_pose(self) -> tuple[float, float, float, float]:
+        """(north, east, down, yaw) of the camera, true."""
+        return tuple(self.camera_view()[:4])  # type: ignore[return-value]
 
     def capture(self):
-        from .camera import CameraModel, Scene, encode_frame, render
+        from .camera import CameraModel, PoseEstimator, Scene, capture_frame
 
         if self.camera_model is None:   # never started (tests of capture alone)
             self.camera_model = CameraModel()
+        if self.estimator is None:
+            self.estimator = PoseEstimator(self.camera_model, self.cfg.seed)
         assert self.desk is not None
         with self.desk.cv:
             robots = dict(self.judge.positions)
         scene = Scene(self.truth.free, robots, list(self.truth.goals), self.landmarks)
-        pose = self.camera_pose()
-        image = render(scene, pose, self.camera_model, self.cfg.cell_size_m, seed=self._next_seq())
+        view = self.camera_view()
         t = self.vehicle.sim_time_s if self.vehicle is not None else time.monotonic() - self._t0
-        return encode_frame(image, pose, self.camera_model, t, seq=self._next_seq())
+        seed = self._next_seq()
+        return capture_frame(scene, view, self.camera_model, self.cfg.cell_size_m, self.estimator, t,
+                             seq=self._next_seq(), seed=seed)
 
     def _on_mission_end(self, key: str, payload: bytes) -> None:
         try:
@@ -493,20 +505,6 @@ def add_world_parser(subparsers: Any) -> argparse.ArgumentParser:
     return p
 
 
-def camera_options(text: str) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for part in filter(None, text.split(",")):
-        key, sep, value = part.partition("=")
-        try:
-            num = float(value)
-        except ValueError:
-            raise UavRobotsError(f"--camera {text!r}: {part!r} is not name=number") from None
-        if not sep:
-            raise UavRobotsError(f"--camera {text!r}: {part!r} is not name=number")
-        out[key.strip()] = int(num) if key.strip() in ("width", "height") else num
-    return out
-
-
 # A 12 MP camera, as on common survey drones: it covers the 450x450 warehouse in 12
 # images at 20 px per cell where a 1280x960 one needs 80 (and 80 flights between them).
 DRONE_CAMERA = {"width": 4000, "height": 3000}
@@ -527,9 +525,11 @@ def add_world_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cell-size", type=float, default=1.0, metavar="M", help="grid cell size in metres")
     p.add_argument("--connectivity", type=int, choices=(4, 8), default=4)
     p.add_argument("--home", default=None, metavar="LAT,LON,ALT", help="the grid corner's geodetic position")
-    p.add_argument("--camera", default="", metavar="K=V,...",
-                   help="camera options over the default 12 MP drone camera (4000x3000, 90 deg), "
-                        "e.g. width=1280,height=960,hfov_deg=90,noise_std=2,blur_sigma=1,lighting=0.3")
+    p.add_argument("--camera", default="", metavar="[PRESET,]K=V,...",
+                   help="the camera: a preset (ideal, realistic; default "
+                        f"{DEFAULT_CAMERA_PRESET}) then keys over it, on the 12 MP drone camera (4000x3000, "
+                        "90 deg), e.g. realistic,blur_sigma=2 or width=1280,height=960,noise_std=2 "
+                        "(every key: README, 'The camera')")
     p.add_argument("--fault", action="append", default=[], metavar="slip:P",
                    help="slip:P: each move ends, with probability P, in another free neighbour cell or where "
                         "it started, and the robot is told it arrived (only a camera sees the truth)")

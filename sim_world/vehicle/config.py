@@ -30,6 +30,8 @@ class VehicleConfig:
     max_alt_m: float = 120.0
     land_speed_m_s: float = 0.7  # MPC_LAND_SPEED, used for the last metres of a landing
     disarm_after_land_s: float = 2.0  # COM_DISARM_LAND, simulated seconds
+    hover_wobble_deg: float = 0.0  # amplitude of the roll/pitch wobble in the air (see dynamics.Wobble)
+    seed: int = 0                  # of the wobble
 
     def __post_init__(self) -> None:
         check_home(self.home_lat, self.home_lon)
@@ -43,5 +45,7 @@ class VehicleConfig:
         if not (math.isfinite(self.home_alt_m) and math.isfinite(self.disarm_after_land_s)
                 and self.disarm_after_land_s >= 0):
             raise MissionError("vehicle home_alt_m and disarm_after_land_s must be finite (the latter >= 0)")
+        if not (math.isfinite(self.hover_wobble_deg) and 0 <= self.hover_wobble_deg <= 30):
+            raise MissionError(f"vehicle hover_wobble_deg must be in [0, 30], got {self.hover_wobble_deg}")
         if self.takeoff_alt_m > self.max_alt_m:
             raise MissionError(f"vehicle takeoff_alt_m {self.takeoff_alt_m} is above max_alt_m {self.max_alt_m}")

@@ -2,8 +2,12 @@
 whether it stands on the ground.
 
 The physics is kinematic: the vehicle moves straight toward its target with its
-horizontal speed and climb limits; there is no attitude dynamics (the camera is
-treated as gimballed, so roll and pitch are reported as zero). `time_scale`
+horizontal speed and climb limits. Its attitude follows from that motion as a
+multicopter's does: the tilt that produces the horizontal acceleration
+(atan(a / g), forward acceleration = nose down, rightward = roll right), capped
+at MAX_TILT_DEG and lagging by the attitude loop's TILT_TAU_S, plus, in the air,
+a small seeded hover wobble (two incommensurate sines per axis). The camera is
+fixed to the body, so it sees the floor through this attitude. `time_scale`
 simulated seconds pass per wall second, so a demo need not wait for real flight.
 
 Frames: local NED with the origin at home (the warehouse grid's top-left corner, at
@@ -14,6 +18,7 @@ from __future__ import annotations
 
 import enum
 import math
+import random
 import threading
 import time
 from dataclasses import dataclass
@@ -29,6 +34,8 @@ YAW_RATE_RAD_S = math.radians(90.0)
 GRAVITY_M_S2 = 9.81
 TERMINAL_SPEED_M_S = 20.0
 PHYSICS_PERIOD_S = 0.02  # wall time between steps
+TILT_TAU_S = 0.15        # attitude loop's lag behind the tilt the acceleration asks for
+MAX_TILT_DEG = 25.0      # PX4 allows MPC_TILTMAX_AIR = 45; a survey flight stays well under it
 
 
 def step_toward(pos: Vec3, target: Vec3, speed_xy: float, speed_up: float, speed_down: float, dt: float) -> Vec3:
@@ -72,11 +79,41 @@ class Contact(enum.Enum):
 
 
 class State(NamedTuple):
-    """One consistent reading of the airframe (NED metres, m/s, radians)."""
+    """One consistent reading of the airframe (NED metres, m/s, radians, rad/s)."""
 
     pos: Vec3
     vel: Vec3
     yaw: float
+    roll: float = 0.0
+    pitch: float = 0.0
+    roll_rate: float = 0.0
+    pitch_rate: float = 0.0
+
+
+def tilt_for(accel_n: float, accel_e: float, yaw: float) -> tuple[float, float]:
+    """(roll, pitch) that point the thrust so as to accelerate horizontally by (accel_n, accel_e)."""
+    fwd = accel_n * math.cos(yaw) + accel_e * math.sin(yaw)
+    right = -accel_n * math.sin(yaw) + accel_e * math.cos(yaw)
+    cap = math.radians(MAX_TILT_DEG)
+    roll = math.atan2(right, GRAVITY_M_S2)
+    pitch = -math.atan2(fwd, GRAVITY_M_S2)
+    return max(-cap, min(cap, roll)), max(-cap, min(cap, pitch))
+
+
+class Wobble:
+    """A hover's small attitude wobble: per axis two sines of seeded frequency and phase."""
+
+    def __init__(self, amplitude_deg: float, seed: int) -> None:
+        rng = random.Random(seed * 7919 + 17)
+        self.amplitude = math.radians(amplitude_deg)
+        self.terms = [[(w, rng.uniform(f0, f1) * 2 * math.pi, rng.uniform(0, 2 * math.pi))
+                       for w, f0, f1 in ((0.7, 0.2, 0.5), (0.3, 0.8, 1.6))] for _ in range(2)]
+
+    def at(self, t: float) -> tuple[float, float]:
+        if not self.amplitude:
+            return 0.0, 0.0
+        roll, pitch = (self.amplitude * sum(w * math.sin(om * t + ph) for w, om, ph in axis) for axis in self.terms)
+        return roll, pitch
 
 
 class Pilot(Protocol):
@@ -96,13 +133,18 @@ class Dynamics:
     """The airframe's state and its physics step. `ceiling()` is the highest altitude it
     may reach (a parameter, so it is asked at every use)."""
 
-    def __init__(self, lock: threading.RLock, journal: Journal, ceiling: Callable[[], float]):
+    def __init__(self, lock: threading.RLock, journal: Journal, ceiling: Callable[[], float],
+                 wobble_deg: float = 0.0, seed: int = 0):
         self._lock = lock
         self._journal = journal
         self._ceiling = ceiling
         self._pos: Vec3 = (0.0, 0.0, 0.0)
         self._vel: Vec3 = (0.0, 0.0, 0.0)
         self._yaw = 0.0
+        self._tilt = (0.0, 0.0)          # (roll, pitch) from the acceleration, lagged
+        self._attitude = (0.0, 0.0)      # (roll, pitch) with the wobble
+        self._rates = (0.0, 0.0)
+        self._wobble = Wobble(wobble_deg, seed)
         self._sim_time = 0.0
         self._airborne = False
         self._max_alt = 0.0
@@ -111,7 +153,7 @@ class Dynamics:
 
     def state(self) -> State:
         with self._lock:
-            return State(self._pos, self._vel, self._yaw)
+            return State(self._pos, self._vel, self._yaw, *self._attitude, *self._rates)
 
     def pose(self) -> tuple[float, float, float, float]:
         """(north, east, down, yaw_rad) in the local NED frame."""
@@ -179,9 +221,23 @@ class Dynamics:
                 pilot.on_moved(setpoint)
             n, e, d = self._pos
             self._pos = (n, e, self.clamp_down(d))
+            prev_vel = self._vel
             self._vel = tuple((a - b) / dt for a, b in zip(self._pos, prev)) if dt > 0 else (0.0, 0.0, 0.0)
+            self._step_attitude(dt, prev_vel)
             pilot.on_contact(self._detect_contact())
             self._max_alt = max(self._max_alt, -self._pos[2])
+
+    def _step_attitude(self, dt: float, prev_vel: Vec3) -> None:
+        if dt <= 0:
+            return
+        target = tilt_for((self._vel[0] - prev_vel[0]) / dt, (self._vel[1] - prev_vel[1]) / dt, self._yaw) \
+            if self._airborne else (0.0, 0.0)
+        k = 1.0 - math.exp(-dt / TILT_TAU_S)
+        self._tilt = tuple(t + k * (g - t) for t, g in zip(self._tilt, target))
+        wobble = self._wobble.at(self._sim_time) if self._airborne else (0.0, 0.0)
+        attitude = (self._tilt[0] + wobble[0], self._tilt[1] + wobble[1])
+        self._rates = tuple((a - b) / dt for a, b in zip(attitude, self._attitude))
+        self._attitude = attitude
 
     def _fall(self, dt: float) -> None:
         if -self._pos[2] <= GROUND_EPS_M:

@@ -181,8 +181,8 @@ class Telemetry:
         return self._encoder.local_position_ned_encode(self._boot_ms(), *state.pos, *state.vel)
 
     def _attitude(self):
-        yaw = self._dynamics.state().yaw
-        return self._encoder.attitude_encode(self._boot_ms(), 0.0, 0.0, yaw, 0.0, 0.0, 0.0)
+        s = self._dynamics.state()
+        return self._encoder.attitude_encode(self._boot_ms(), s.roll, s.pitch, s.yaw, s.roll_rate, s.pitch_rate, 0.0)
 
     def _home_position(self):
         return self._encoder.home_position_encode(*self._home_geo(), 0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0],

@@ -9,7 +9,7 @@ from protocol.errors import MissionError
 from .autopilot import Autopilot
 from .commands import Commands
 from .config import VehicleConfig
-from .dynamics import Dynamics
+from .dynamics import Dynamics, State
 from .journal import Journal
 from .link import Link
 from .modes import LandedState, Mode
@@ -35,7 +35,8 @@ class Vehicle:
         self._journal = Journal(self._lock, sim_time=lambda: self._dynamics.sim_time)
         self._link = Link(cfg, self._lock, self._journal)
         self._params = Params(cfg, self._lock, self._journal, self._link)
-        self._dynamics = Dynamics(self._lock, self._journal, ceiling=lambda: self._params.get("LNDMC_ALT_MAX"))
+        self._dynamics = Dynamics(self._lock, self._journal, ceiling=lambda: self._params.get("LNDMC_ALT_MAX"),
+                                  wobble_deg=cfg.hover_wobble_deg, seed=cfg.seed)
         self._offboard = Offboard(self._lock, self._journal, self._link, self._dynamics)
         self._autopilot = Autopilot(self._lock, self._journal, self._dynamics, self._params, self._offboard,
                                     cruise_speed_m_s=cfg.max_speed_m_s)
@@ -81,6 +82,10 @@ class Vehicle:
     def pose(self) -> tuple[float, float, float, float]:
         """(north, east, down, yaw_rad) in the local NED frame."""
         return self._dynamics.pose()
+
+    def state(self) -> State:
+        """Position, velocity and attitude at one instant (NED, m/s, radians)."""
+        return self._dynamics.state()
 
     @property
     def armed(self) -> bool:

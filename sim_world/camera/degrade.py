@@ -1,0 +1,93 @@
+"""What the sensor and the optics do to a rendered image: defocus and motion blur,
+uneven lighting and vignetting (one brightness gain), and sensor noise.
+
+Order, as light goes: blur (the optics and the exposure) before the gain (a
+smooth field, so the two nearly commute) before the noise (the sensor's).
+"""
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+from .model import CameraModel
+
+NOISE_PAD = 64
+MIN_MOTION_PX = 0.5      # shorter smears are below what a pixel shows
+
+
+@lru_cache(maxsize=8)
+def _gain(width: int, height: int, lighting: float, angle_deg: float, vignetting: float,
+          cx: float, cy: float) -> np.ndarray:
+    """Brightness factor per pixel: a linear lighting ramp (1 on one side, 1 - lighting on the
+    other) times a radial vignetting falloff (1 at the principal point, 1 - vignetting at the
+    farthest corner, in r^2 as a lens's cos^4 law is near the axis)."""
+    xs = np.arange(width, dtype=np.float32) - width / 2
+    ys = np.arange(height, dtype=np.float32) - height / 2
+    gain = np.ones((height, width), np.float32)
+    if lighting > 0:
+        a = math.radians(angle_deg)
+        ramp = math.cos(a) * xs[None, :] + math.sin(a) * ys[:, None]
+        span = float(ramp.max() - ramp.min()) or 1.0
+        gain = (1.0 - lighting * (ramp - ramp.min()) / span).astype(np.float32)
+    if vignetting > 0:
+        dx = np.arange(width, dtype=np.float32) - cx
+        dy = np.arange(height, dtype=np.float32) - cy
+        r2 = dx[None, :] ** 2 + dy[:, None] ** 2
+        gain = gain * (1.0 - vignetting * r2 / float(r2.max())).astype(np.float32)
+    gain = np.ascontiguousarray(np.repeat(gain[..., None], 3, axis=2))
+    gain.flags.writeable = False
+    return gain
+
+
+@lru_cache(maxsize=2)
+def _noise_bank(width: int, height: int) -> np.ndarray:
+    """Unit Gaussian noise a little larger than a frame; each frame adds a window of it
+    at a random offset (fresh noise per frame costs more than the rest of rendering)."""
+    noise = np.random.default_rng(0).standard_normal((height + NOISE_PAD, width + NOISE_PAD, 3), dtype=np.float32)
+    noise.flags.writeable = False
+    return noise
+
+
+def motion_kernel(dx: float, dy: float) -> np.ndarray:
+    """A normalised line kernel for a smear of (dx, dy) pixels: the segment sampled every
+    quarter pixel and splatted bilinearly, so sub-pixel lengths and any angle are exact."""
+    length = math.hypot(dx, dy)
+    half = math.ceil(length / 2) + 1
+    size = 2 * half + 1
+    k = np.zeros((size, size), np.float64)
+    n = max(2, math.ceil(length * 4) + 1)
+    for t in np.linspace(-0.5, 0.5, n):
+        x, y = half + t * dx, half + t * dy
+        x0, y0 = math.floor(x), math.floor(y)
+        fx, fy = x - x0, y - y0
+        k[y0, x0] += (1 - fx) * (1 - fy)
+        k[y0, x0 + 1] += fx * (1 - fy)
+        k[y0 + 1, x0] += (1 - fx) * fy
+        k[y0 + 1, x0 + 1] += fx * fy
+    return (k / k.sum()).astype(np.float32)
+
+
+def degrade(image: np.ndarray, model: CameraModel, seed: int | None,
+            motion_px: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+    moving = math.hypot(*motion_px) >= MIN_MOTION_PX
+    shaded = model.lighting > 0 or model.vignetting > 0
+    if not (shaded or moving or model.blur_sigma > 0 or model.noise_std > 0):
+        return image
+    if model.blur_sigma > 0:
+        image = cv2.GaussianBlur(image, (0, 0), model.blur_sigma)
+    if moving:
+        image = cv2.filter2D(image, -1, motion_kernel(*motion_px), borderType=cv2.BORDER_REPLICATE)
+    if not shaded and model.noise_std == 0:
+        return image
+    out = image.astype(np.float32)
+    if shaded:
+        cv2.multiply(out, _gain(model.width, model.height, model.lighting, model.lighting_angle_deg,
+                                model.vignetting, model.cx, model.cy), dst=out)
+    if model.noise_std > 0:
+        dy, dx = np.random.default_rng(seed).integers(0, NOISE_PAD, size=2)
+        window = _noise_bank(model.width, model.height)[dy:dy + model.height, dx:dx + model.width]
+        cv2.scaleAdd(window, float(model.noise_std), out, dst=out)
+    return np.clip(out, 0, 255, out=out).astype(np.uint8)
