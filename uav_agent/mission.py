@@ -259,7 +259,20 @@ class Mission:
             self._status("survey", message=f"image {i + 1}/{len(poses)} from {alt:.1f} m")
             self.flight.goto(north, east, alt)
             self._track_altitude()
-            self._capture()
+            frame = self._capture()
+            if i == 0:
+                lower = self._sharp_enough(frame, first)
+                if lower is not None:
+                    poses = self._poses = lower
+                    break
+        else:
+            lower = None
+        if lower is not None:   # the first image was too blurred for the planned height: the lower survey
+            for i, (north, east, alt) in enumerate(poses):
+                self._status("survey", message=f"image {i + 1}/{len(poses)} from {alt:.1f} m (lower: blurred camera)")
+                self.flight.goto(north, east, alt)
+                self._track_altitude()
+                self._capture()
         # Hover over the floor's centre while the robots move: the leader keeps them in view.
         c = self.info.cell_size_m
         centre_n, centre_e = -self.info.height * c / 2, self.info.width * c / 2
@@ -270,6 +283,29 @@ class Mission:
         self.uav["hover"] = [round(e / c, 2), round(-n / c, 2), round(-d, 2)]
         self._track_altitude()
         self.clock.lap("survey")
+
+    def _sharp_enough(self, frame: CameraFrame, camera: CameraFrame):
+        """None if the survey's resolution reads markers through this image's blur; else the
+        survey poses at the resolution that does (measured from the image's own edges)."""
+        import cv2
+
+        from .perception import decode_frame
+        from .perception.blur import blur_sigma
+        from .perception.frames import undistorted
+        from .survey import ROBOT_MODULE_CELLS, px_per_cell_for, survey_poses
+
+        image, _ = undistorted(decode_frame(frame))
+        sigma = blur_sigma(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))
+        c = self.info.cell_size_m
+        module = ROBOT_MODULE_CELLS if self.landmarks is None else min(ROBOT_MODULE_CELLS, self.landmarks.module_m / c)
+        need = px_per_cell_for(sigma, self.cfg.min_px_per_cell, module)
+        self.uav["survey_blur_px"] = round(sigma, 2)
+        if need <= self.cfg.min_px_per_cell:
+            return None
+        self.uav["survey_px_per_cell"] = round(need, 1)
+        self.progress.phase("survey", f"the camera blurs by {sigma:.1f} px: surveying at {need:.0f} px per cell "
+                                      f"instead of {self.cfg.min_px_per_cell:g}")
+        return survey_poses(self.info.width, self.info.height, c, camera, min_px_per_cell=need)
 
     def _perceive(self):
         # The robots on the network name the ids the camera may see; a marker read as any
@@ -301,21 +337,18 @@ class Mission:
         """Perceive `frames`; what they leave in doubt gets a closer look from lower down: markers
         whose id did not decode, unsure cells (before they are taken for obstacles), and, when
         fewer goals than robots were seen, the robots (one may stand on a goal and hide most of it)."""
-        from .perception.relook import hover_points
+        from .perception.relook import doubts, hover_points
 
         model = self._perceive_frames(frames, known)
         for attempt in range(1, RELOOK_ROUNDS + 1):
-            missing = sorted(set(known or ()) - set(model.robots))
-            targets = set(model.unidentified) if missing or known is None else set()
-            if for_map:   # a fresh look for robots only (verify, recover) needs no map or goals
-                targets |= set(model.unsure)
-            if for_map and len(model.goals) < len(model.robots):
-                targets |= set(model.robots.values())
+            targets = doubts(model, known, for_map)
             if not targets:
                 break
-            cells = sorted(targets)[:RELOOK_MAX_CELLS]
+            cells = targets[:RELOOK_MAX_CELLS]
             c = self.info.cell_size_m
-            alt = max(RELOOK_MIN_ALT_M, self._survey_alt / 2.0 ** attempt)
+            # Lower for detail, but high enough to keep landmarks in view to register by.
+            keep = self.landmarks.view_alt_m(self._camera.width / self._camera.fx) if self.landmarks else 0.0
+            alt = min(self._survey_alt, max(RELOOK_MIN_ALT_M, keep, self._survey_alt / 2.0 ** attempt))
             here = self.flight.position_ned()
             points = hover_points(cells, c, alt, self._camera.width, self._camera.height, self._camera.fx,
                                   self._camera.fy, (here[0], here[1]))

@@ -86,3 +86,17 @@ def survey_poses(width: int, height: int, cell_size_m: float, model: CameraLike,
         for east in (easts if row % 2 == 0 else easts[::-1]):
             poses.append(SurveyPose(north_m=-south - dn, east_m=east - de, alt_m=alt))
     return poses
+
+
+ROBOT_MODULE_CELLS = 1 / 8      # a robot marker's module: the cell is 8 modules wide
+MODULE_PX_PER_SIGMA = 4.0       # a module this many measured blur sigmas wide still reads (the estimate runs low)
+SHARP_SIGMA_PX = 1.0            # below this the image is as sharp as the survey's resolution needs
+
+
+def px_per_cell_for(blur_px: float, min_px_per_cell: float, module_cells: float = ROBOT_MODULE_CELLS) -> float:
+    """Resolution the survey needs for markers to read through a measured blur of `blur_px`:
+    a module (`module_cells` of a cell; the smallest of robot and landmark markers) must span
+    MODULE_PX_PER_SIGMA blur sigmas. A sharp image keeps `min_px_per_cell`."""
+    if not math.isfinite(blur_px) or blur_px <= SHARP_SIGMA_PX:
+        return min_px_per_cell
+    return max(min_px_per_cell, MODULE_PX_PER_SIGMA * blur_px / module_cells)

@@ -27,7 +27,7 @@ from .occupancy import cells_in
 from .registration import Landmarks, Registration, register
 from .view import View, px_per_cell, sharpness
 
-ESTIMATE_WEIGHT = 0.2       # a view placed by the pose estimate alone, against one registered by landmarks
+ESTIMATE_WEIGHT = 0.05      # a view placed by the pose estimate alone, against one registered by landmarks
 UNSURE_AGREEMENT = 0.5      # |weighted vote| / total weight below this: the views disagree
 UNSURE_WEIGHT = 0.1         # total weight below this: nothing clear saw the cell (a clear view weighs 0.5..1)
 
@@ -72,7 +72,21 @@ def _weight(view: View, landmarks: Landmarks | None) -> float:
     reg = view.reg
     if not reg.registered and landmarks is not None:
         return ESTIMATE_WEIGHT * view.sharpness
-    return view.sharpness / (1.0 + (reg.reprojection_px or 0.0))
+    # One landmark pins the view less well than several.
+    return view.sharpness / (1.0 + (reg.reprojection_px or 0.0)) * min(1.0, 0.5 + 0.25 * reg.landmarks)
+
+
+def _within(reg: Registration, cells) -> np.ndarray:
+    """Cells of this view close enough to its landmarks for their placement to hold."""
+    if not np.isfinite(reg.trust_radius) or reg.anchors is None:
+        return np.ones(cells.seen.shape, bool)
+    ny, nx = cells.seen.shape
+    u = np.arange(cells.x0, cells.x0 + nx) + 0.5
+    v = np.arange(cells.y0, cells.y0 + ny) + 0.5
+    d = np.full((ny, nx), np.inf)
+    for au, av in reg.anchors:
+        d = np.minimum(d, np.hypot(u[None, :] - au, v[:, None] - av))
+    return d <= reg.trust_radius
 
 
 def perceive(frames: list[Frame | CameraFrame], width: int, height: int, cell_size_m: float,
@@ -91,7 +105,7 @@ def perceive(frames: list[Frame | CameraFrame], width: int, height: int, cell_si
     vote = np.zeros((height, width))       # sum of weight * (+1 floor, -1 shelf)
     total = np.zeros((height, width))      # sum of weight
     seen = np.zeros((height, width), bool)
-    marker_like = np.zeros((height, width), bool)
+    marker_vote = np.zeros((height, width))   # weight of the views that see a marker's contrast there
     shelf_cells = landmarks.cells(cell_size_m, width, height) if landmarks is not None else set()
     sightings: list[Sighting] = []
     goals: set[Cell] = set()
@@ -109,18 +123,23 @@ def perceive(frames: list[Frame | CameraFrame], width: int, height: int, cell_si
         if cells is None:
             continue
         sl = (slice(cells.y0, cells.y0 + cells.seen.shape[0]), slice(cells.x0, cells.x0 + cells.seen.shape[1]))
-        best = max(best, _weight(view, landmarks))
+        best = max(best, view.sharpness)   # what a registered view of this quality would weigh
+        trusted = cells.seen & _within(reg, cells)
         w = _weight(view, landmarks) * cells.centre_weight * (0.25 + 0.75 * cells.confidence) * cells.seen
+        w = np.where(trusted, w, ESTIMATE_WEIGHT * w)
         vote[sl] += w * np.where(cells.free, 1.0, -1.0)
         total[sl] += w
         seen[sl] |= cells.seen
-        frame_goals = goals_in(view, grid) - shelf_cells
+        if landmarks is not None and not reg.registered:
+            continue   # placed by the estimate alone: its cells vote (weakly), its markers and goals would lie
+        inside = {(int(x) + cells.x0, int(y) + cells.y0) for y, x in zip(*np.nonzero(trusted))}
+        frame_goals = (goals_in(view, grid) - shelf_cells) & inside
         goals |= frame_goals
-        ys, xs = np.nonzero(cells.marker_like)
+        marker_vote[sl] += w * (cells.marker_like & trusted)
+        ys, xs = np.nonzero(cells.marker_like & trusted)
         candidates = {(int(x) + cells.x0, int(y) + cells.y0) for x, y in zip(xs, ys)} - frame_goals - shelf_cells
-        for x, y in candidates:
-            marker_like[y, x] = True
-        sightings += [s for s in read_markers(view, candidates, grid, warnings) if s.cell not in shelf_cells]
+        sightings += [s for s in read_markers(view, candidates, grid, warnings)
+                      if s.cell not in shelf_cells and s.cell in inside]
     free = (vote > 0) & seen
     agreement = np.abs(vote) / np.maximum(total, 1e-12)
     # Weak against this mission's best view: blur or noise that is the same everywhere
@@ -130,7 +149,9 @@ def perceive(frames: list[Frame | CameraFrame], width: int, height: int, cell_si
         free[y, x], unsure_mask[y, x] = False, False
     robots = settle(sightings, known_ids, warnings)
     robot_cells = set(robots.values())
-    marked = {(int(x), int(y)) for y, x in zip(*np.nonzero(marker_like))}
+    # A marker most views agree on: one misregistered view's contrast at a shelf edge is not one.
+    marker_like = marker_vote > 0.5 * total
+    marked = {(int(x), int(y)) for y, x in zip(*np.nonzero(marker_like))} - shelf_cells
     unidentified = sorted(marked - robot_cells - goals)
     for x, y in list(robot_cells) + list(goals) + unidentified:
         free[y, x] = seen[y, x] = True   # floor under a robot or a goal marker

@@ -25,6 +25,7 @@ ORTHO_PPC = 8                   # orthophoto pixels per cell
 BORDER_PX = 2                   # a cell this close to the image edge is not trusted
 MIN_CONTRAST = math.log(1.8)    # two classes must differ at least this much in albedo (shelf ~0.3 of floor)
 MARKER_STD_RATIO = 0.16         # grey std over a cell / the floor's brightness there: a black-on-white marker
+MARKER_WHITE_RATIO = 0.5       # a marker's white modules against the floor's brightness there
 FIT_ROUNDS = 3
 
 
@@ -112,12 +113,17 @@ def cells_in(view: View, grid: tuple[int, int]) -> Cells | None:
         return None
     q, nx, ny = ORTHO_PPC, x1 - x0, y1 - y0
     ortho_to_floor = np.array([[1 / q, 0, x0 + 0.5 / q], [0, 1 / q, y0 + 0.5 / q], [0, 0, 1]])
-    ortho = cv2.warpPerspective(view.gray, view.H @ ortho_to_floor, (nx * q, ny * q),
+    # Average the image over an orthophoto pixel's footprint first: a warp samples points, and
+    # sensor noise sampled at points makes a dark shelf look as contrasted as a marker.
+    spacing = view.ppc / q
+    source = cv2.GaussianBlur(view.gray, (0, 0), 0.3 * spacing) if spacing > 3.0 else view.gray
+    ortho = cv2.warpPerspective(source, view.H @ ortho_to_floor, (nx * q, ny * q),
                                 flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
     cells = ortho.reshape(ny, q, nx, q).astype(np.float32)
     # Brightness from the central half only: the warp blurs cell edges into neighbours.
     luma = cells[:, q // 4: q - q // 4, :, q // 4: q - q // 4].mean(axis=(1, 3))
-    std = cells.std(axis=(1, 3))
+    # Inside the quiet zone only: a slightly misregistered shelf cell must not borrow a strip of floor.
+    std = cells[:, 1:-1, :, 1:-1].std(axis=(1, 3))
     centres = (px[:-1, :-1] + px[1:, 1:]) / 2
     log_luma = np.log(luma + 1.0)
     # Provisional markers, against the image's bright level (the illumination is not
@@ -131,7 +137,10 @@ def cells_in(view: View, grid: tuple[int, int]) -> Cells | None:
     f, c, s = classify(log_luma[sel], centres[sel], ~rough[sel], (img_w, img_h))
     free[sel], confidence[sel], illumination[sel] = f, c, s
     # A marker is black on white: high contrast relative to the floor's brightness where it lies.
-    marker_like = seen & (std > MARKER_STD_RATIO * np.exp(illumination))
+    # ... and its white parts are as bright as the floor there: a noisy or half-covered shelf is not.
+    white = np.percentile(cells[:, 1:-1, :, 1:-1].reshape(ny, q - 2, nx, q - 2).transpose(0, 2, 1, 3)
+                          .reshape(ny, nx, -1), 90, axis=2)
+    marker_like = seen & (std > MARKER_STD_RATIO * np.exp(illumination)) & (white > MARKER_WHITE_RATIO * np.exp(illumination))
     r = np.hypot((centres[..., 0] - img_w / 2) / (img_w / 2), (centres[..., 1] - img_h / 2) / (img_h / 2))
     centre_weight = np.clip(1.0 - 0.5 * r / math.sqrt(2), 0.3, 1.0)
     return Cells(x0, y0, seen, free, confidence, marker_like, centre_weight)

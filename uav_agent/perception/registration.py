@@ -29,14 +29,19 @@ from protocol.messages import CameraFrame, WorldInfo
 
 from .frames import intrinsics
 
-MIN_LANDMARKS = 2          # one small marker pins the position, not the tilt
-RANSAC_PX = 3.0            # homography inlier threshold
+MIN_LANDMARKS = 2          # one small marker under blur leaves the yaw loose by degrees
+SINGLE_LANDMARK_PX = 40.0  # a landmark this many pixels wide registers an image alone
+SINGLE_TRUST = 0.15        # cells of trusted radius per pixel of a lone landmark's side
+FULL_POSE_LANDMARKS = 3    # from this many, the tilt too comes from the image
+LEVEL_RANSAC_M = 0.1       # inlier threshold of the level fit, metres on the floor
 MAX_REPROJECTION_PX = 2.5  # an accepted registration's RMS error over its inliers
 QUIET_ZONE = 1 / 0.75      # a landmark's white block, as a multiple of its black square's side
 
 # Camera axes (columns) in the vehicle's body frame (x forward, y right, z down):
 # a nadir camera whose image right is the body's right and image up its nose.
 _CAMERA_IN_BODY = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
+MIN_CANDIDATE_STD = 15.0   # grey std inside a marker candidate (a marker's is ~100, a blank square's noise < 10)
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,6 +63,25 @@ class Landmarks:
         for rid, east, north in marks:
             by_id.setdefault(int(rid), []).append((float(east), float(north)))
         return cls(family, float(info.landmark_size_m), {k: np.array(v, np.float64) for k, v in by_id.items()})
+
+    @property
+    def module_m(self) -> float:
+        """Side of one module of a landmark (its black square is markerSize + 2 modules wide)."""
+        bits = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.family)).markerSize
+        return self.size_m / (bits + 2)
+
+    def view_alt_m(self, footprint_per_m: float) -> float:
+        """Height from which an image `footprint_per_m` metres wide per metre of height spans
+        2.5 landmark spacings (the median distance between neighbours): two or more in view."""
+        pts = np.concatenate(list(self.by_id.values()))
+        if len(pts) < 2:
+            return 0.0
+        d = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=2) if len(pts) <= 2000 else None
+        if d is None:   # a big table: neighbours within a sample are enough for a median
+            sample = pts[:: max(1, len(pts) // 1000)]
+            d = np.linalg.norm(sample[:, None, :] - pts[None, :, :], axis=2)
+        d[d == 0] = np.inf
+        return float(2.5 * np.median(d.min(axis=1)) / footprint_per_m)
 
     def cells(self, cell_size_m: float, width: int, height: int) -> set[Cell]:
         """Grid cells a landmark (with its quiet zone) covers: known shelf, never a robot."""
@@ -93,6 +117,8 @@ class Registration:
     reprojection_px: float | None = None   # RMS over their corners
     pose: CameraPoseEstimate | None = None
     notes: list[str] = field(default_factory=list)
+    anchors: np.ndarray | None = None      # (k, 2) floor cells of the landmarks used
+    trust_radius: float = math.inf         # cells from an anchor within which the placement holds
 
     @property
     def registered(self) -> bool:
@@ -136,6 +162,9 @@ def _detector(family: str, perimeter_rate: float) -> cv2.aruco.ArucoDetector:
     # (shelf edges, robot markers) makes detection several times faster.
     params.minMarkerPerimeterRate = max(0.005, 0.5 * perimeter_rate)
     params.maxMarkerPerimeterRate = min(4.0, 2.0 * perimeter_rate)
+    # A marker's inside is black and white; a plain shelf or floor square is not worth decoding
+    # (each decode searches the whole dictionary: thousands of shelf squares cost seconds).
+    params.minOtsuStdDev = MIN_CANDIDATE_STD
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
     return cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, family)), params)
 
@@ -188,29 +217,76 @@ def register(gray: np.ndarray, meta: CameraFrame, landmarks: Landmarks | None, c
         floor_pts.append(_corners_floor(table[k], landmarks.size_m, cell_size_m))
         image_pts.append(quad)
         names.append((int(lid), k))
-    if len(set(names)) < MIN_LANDMARKS:
+    # One landmark's corners fix the yaw to within (corner error / its side): enough when it is large.
+    least = 1 if side_px >= SINGLE_LANDMARK_PX else MIN_LANDMARKS
+    if len(set(names)) < least:
         return Registration(prior, "estimate", notes=[f"{len(set(names))} landmark(s) in view, "
-                                                      f"{MIN_LANDMARKS} needed"])
+                                                      f"{least} needed"])
     floor = np.concatenate(floor_pts)
     image = np.concatenate(image_pts)
-    _, mask = cv2.findHomography(floor, image, cv2.RANSAC, RANSAC_PX)
-    inliers = mask.ravel().astype(bool) if mask is not None else np.zeros(len(floor), bool)
-    used = {names[i // 4] for i in np.nonzero(inliers)[0]}
-    if len(used) < MIN_LANDMARKS:
+    ned = np.column_stack([-floor[:, 1] * cell_size_m, floor[:, 0] * cell_size_m, np.zeros(len(floor))])
+    level = _level_fit(ned, image, meta)
+    if level is None:
         return Registration(prior, "estimate", notes=["landmarks disagree (RANSAC)"])
-    ned = np.column_stack([-floor[inliers, 1] * cell_size_m, floor[inliers, 0] * cell_size_m,
-                           np.zeros(int(inliers.sum()))])
-    ok, rvec, tvec = cv2.solvePnP(ned, image[inliers], K, None, flags=cv2.SOLVEPNP_IPPE)
-    if not ok:
-        return Registration(prior, "estimate", notes=["solvePnP failed"])
-    rvec, tvec = cv2.solvePnPRefineLM(ned, image[inliers], K, None, rvec, tvec)
-    R, pose = _pose_from(rvec, tvec)
+    R, pose, inliers = level
+    used = {names[i // 4] for i in np.nonzero(inliers)[0]}
+    solver = "level"
+    # Three or more landmarks spread over the image pin the tilt better than the
+    # vehicle's attitude estimate: refine all six degrees of freedom from the level fit.
+    if len(used) >= FULL_POSE_LANDMARKS:
+        rvec, _ = cv2.Rodrigues(R)
+        tvec = -R @ np.array([pose.north_m, pose.east_m, pose.down_m])
+        rvec, tvec = cv2.solvePnPRefineLM(ned[inliers], image[inliers], K, None, rvec, tvec.reshape(3, 1))
+        R6, pose6 = _pose_from(rvec, tvec)
+        if _rms(ned[inliers], image[inliers], K, R6, pose6) < _rms(ned[inliers], image[inliers], K, R, pose):
+            R, pose, solver = R6, pose6, "full"
+    rms = _rms(ned[inliers], image[inliers], K, R, pose)
     if not pose.down_m < 0:
         return Registration(prior, "estimate", notes=["landmarks put the camera under the floor"])
-    H = _floor_homography(K, R, np.array([pose.north_m, pose.east_m, pose.down_m]), cell_size_m)
-    projected = cv2.perspectiveTransform(floor[inliers].reshape(-1, 1, 2), H).reshape(-1, 2)
-    rms = float(np.sqrt(np.mean(np.sum((projected - image[inliers]) ** 2, axis=1))))
     if rms > MAX_REPROJECTION_PX:
         return Registration(prior, "estimate", landmarks=len(used), reprojection_px=rms,
                             notes=[f"landmark fit {rms:.1f} px RMS, over {MAX_REPROJECTION_PX} px"])
-    return Registration(H, "landmarks", landmarks=len(used), reprojection_px=rms, pose=pose)
+    H = _floor_homography(K, R, np.array([pose.north_m, pose.east_m, pose.down_m]), cell_size_m)
+    anchors = np.array([floor[i * 4: i * 4 + 4].mean(axis=0) for i, name in enumerate(names) if name in used])
+    # One landmark leaves the yaw uncertain by about a pixel over its side: the placement
+    # drifts with distance from it, a tenth of a cell at SINGLE_TRUST cells per pixel of side.
+    radius = SINGLE_TRUST * side_px if len(used) == 1 else math.inf
+    return Registration(H, "landmarks", landmarks=len(used), reprojection_px=rms, pose=pose, notes=[solver],
+                        anchors=anchors, trust_radius=radius)
+
+
+def _rms(ned: np.ndarray, image: np.ndarray, K: np.ndarray, R: np.ndarray, pose: CameraPoseEstimate) -> float:
+    cam = (ned - np.array([pose.north_m, pose.east_m, pose.down_m])) @ R.T
+    px = cam[:, :2] / cam[:, 2:3] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+    return float(np.sqrt(np.mean(np.sum((px - image) ** 2, axis=1))))
+
+
+def _level_fit(ned: np.ndarray, image: np.ndarray, meta: CameraFrame
+               ) -> tuple[np.ndarray, CameraPoseEstimate, np.ndarray] | None:
+    """Position, height and yaw from floor points, the roll and pitch taken from the estimate.
+
+    Each pixel's ray is turned by the estimated roll and pitch into a level camera,
+    whose view of the floor is a similarity: scale = height, rotation = yaw, shift =
+    position. A 4-parameter RANSAC fit (cv2.estimateAffinePartial2D) is well posed
+    with a single landmark, where a full 6-DOF pose trades tilt for position."""
+    roll, pitch = float(getattr(meta, "roll_rad", 0.0)), float(getattr(meta, "pitch_rad", 0.0))
+    K = intrinsics(meta)
+    rays = np.column_stack([(image[:, 0] - K[0, 2]) / K[0, 0], (image[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(image))])
+    tilt = _body_to_ned(roll, pitch, 0.0) @ _CAMERA_IN_BODY      # camera -> a yaw-free level frame
+    d = rays @ tilt.T
+    if np.any(d[:, 2] <= 1e-6):
+        return None
+    q = d[:, :2] / d[:, 2:3]          # (north, east) offsets per metre of height, yaw-free
+    M, mask = cv2.estimateAffinePartial2D(np.ascontiguousarray(q), np.ascontiguousarray(ned[:, :2]), method=cv2.RANSAC,
+                                          ransacReprojThreshold=LEVEL_RANSAC_M, confidence=0.999)
+    if M is None:
+        return None
+    height = math.hypot(M[0, 0], M[1, 0])
+    yaw = math.atan2(M[1, 0], M[0, 0])
+    north, east = float(M[0, 2]), float(M[1, 2])
+    if not height > 0:
+        return None
+    body = _body_to_ned(roll, pitch, yaw)
+    R = (body @ _CAMERA_IN_BODY).T
+    pose = CameraPoseEstimate(north, east, -height, roll, pitch, yaw)
+    return R, pose, mask.ravel().astype(bool)

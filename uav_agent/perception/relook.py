@@ -9,7 +9,7 @@ flight per unreadable marker.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable
 
 from protocol.grid import Cell
 
@@ -37,3 +37,16 @@ def hover_points(cells: Iterable[Cell], cell_size_m: float, alt_m: float, width_
         ordered.append(nxt)
         here = nxt
     return ordered
+
+
+def doubts(model, known: Collection[int] | None, for_map: bool = True) -> list[Cell]:
+    """The cells a closer look should see: unreadable markers (while a known robot is missing),
+    and, when the map matters, unsure cells and, if fewer goals than robots were seen, the
+    robots (one may stand on a goal and hide most of it)."""
+    missing = set(known or ()) - set(model.robots)
+    targets = set(model.unidentified) if missing or known is None else set()
+    if for_map:
+        targets |= set(model.unsure)
+        if len(model.goals) < len(model.robots):
+            targets |= set(model.robots.values())
+    return sorted(targets)
