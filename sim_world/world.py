@@ -33,7 +33,7 @@ from protocol.transport import IncomingQuery, Transport, open_session
 from scenarios.landmarks import LandmarkSet
 from scenarios.maps import place, resolve_map
 
-from .camera.model import DEFAULT_CAMERA_PRESET, camera_options
+from .camera.model import DEFAULT_CAMERA_PRESET, camera_model_from, camera_options
 from .moves import MoveJudge
 
 # PX4 SITL's default home: a field near Zurich. The grid's top-left corner is there.
@@ -249,18 +249,17 @@ class World(Lifecycle):
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
         cfg = self.cfg
-        if cfg.camera:
-            from .camera import CameraModel
-            try:
-                self.camera_model = CameraModel(**cfg.camera)
-            except TypeError as exc:
-                raise UavRobotsError(f"camera options: {exc}") from None
-        else:
-            from .camera import CameraModel
-            self.camera_model = CameraModel()
-        from .camera import PoseEstimator, scene_landmarks
+        from .camera import CameraModel
+        try:
+            self.camera_model = CameraModel(**cfg.camera)
+        except TypeError as exc:
+            raise UavRobotsError(f"camera options: {exc}") from None
+        from .camera import PoseEstimator, prepare, scene_landmarks
         self.landmarks = scene_landmarks(self.truth.free, cfg.cell_size_m, self.camera_model)
         self.estimator = PoseEstimator(self.camera_model, cfg.seed)
+        # The lens and noise tables take seconds at 12 MP: built on the camera's thread while the
+        # vehicle takes off, so the first image is not late.
+        self._camera_pool.submit(prepare, self.camera_model)
         if cfg.mavlink:
             from .vehicle import Vehicle, VehicleConfig
             self.vehicle = Vehicle(VehicleConfig(url=cfg.mavlink, home_lat=cfg.home_lat, home_lon=cfg.home_lon,
@@ -452,10 +451,6 @@ class World(Lifecycle):
         n, e, d = st.pos
         return VehicleView(n, e, d - self.cfg.camera_height_m, st.yaw, st.roll, st.pitch, *st.vel)
 
-    def camera_pose(self) -> tuple[float, float, float, float]:
-        """(north, east, down, yaw) of the camera, true."""
-        return tuple(self.camera_view()[:4])  # type: ignore[return-value]
-
     def capture(self):
         from .camera import CameraModel, PoseEstimator, Scene, capture_frame
 
@@ -466,7 +461,8 @@ class World(Lifecycle):
         assert self.desk is not None
         with self.desk.cv:
             robots = dict(self.judge.positions)
-        scene = Scene(self.truth.free, robots, list(self.truth.goals), self.landmarks)
+        scene = Scene(self.truth.free, robots, list(self.truth.goals), self.landmarks,
+                      goal_pads=bool(self.camera_model.goal_pads))
         view = self.camera_view()
         t = self.vehicle.sim_time_s if self.vehicle is not None else time.monotonic() - self._t0
         seed = self._next_seq()
@@ -560,6 +556,7 @@ def config_from_args(args: argparse.Namespace) -> WorldConfig:
         if len(home) != 3:
             raise UavRobotsError(f"--home {args.home!r} is not LAT,LON,ALT")
     mav = None if args.mavlink.lower() in ("none", "off", "") else args.mavlink
+    camera_model_from(args.camera, DRONE_CAMERA)   # every value checked before anything starts
     cfg = WorldConfig(fleet=args.fleet, map=args.map, robots=args.robots, seed=args.seed, scen=args.scen,
                       connectivity=args.connectivity, cell_size_m=args.cell_size, home_lat=home[0],
                       home_lon=home[1], home_alt_m=home[2], mavlink=mav, time_scale=args.time_scale,

@@ -21,9 +21,10 @@ def _add_run(sub) -> None:
     add_planning_arguments(p)
     p.add_argument("--time-scale", type=float, default=10.0,
                    help="simulated seconds per wall second for the vehicle (default 10)")
-    p.add_argument("--camera", default="",
-                   help="camera options for the world, e.g. 'width=1280,height=960,hfov_deg=84,noise_std=6,"
-                        "blur_sigma=1,lighting=0.3' (default 4000x3000, 90 deg, clean)")
+    p.add_argument("--camera", default="", metavar="[PRESET,]K=V,...",
+                   help="the world's camera: a preset (ideal, realistic) then keys over it, e.g. 'realistic', "
+                        "'realistic,blur_sigma=2' or 'width=1280,height=960,noise_std=6' (default: the ideal "
+                        "4000x3000, 90 deg camera; every key in README, 'The camera')")
     p.add_argument("--robots-per-process", type=int, default=None,
                    help="robots hosted per process (default: 1 up to 64 robots, then 4 pools)")
     p.add_argument("--fault", action="append", default=[], metavar="SPEC",

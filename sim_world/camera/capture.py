@@ -6,10 +6,11 @@ from typing import NamedTuple
 
 from protocol.messages import CameraFrame
 
+from .degrade import prepare_degrade
 from .encode import encode_frame
 from .estimate import PoseEstimator
 from .model import CameraModel
-from .render import CameraPose, Scene, render
+from .render import CameraPose, Scene, lens_for, render
 
 
 class VehicleView(NamedTuple):
@@ -31,6 +32,16 @@ class VehicleView(NamedTuple):
 
 def capture_frame(scene: Scene, view: VehicleView, model: CameraModel, cell_size_m: float,
                   estimator: PoseEstimator, time_s: float, seq: int = 0, seed: int | None = None) -> CameraFrame:
-    image = render(scene, view.pose, model, cell_size_m, seed=seed if seed is not None else seq,
+    pose = view.pose
+    if model.gimbal:   # a stabilised camera stays level whatever the airframe does
+        pose = pose._replace(roll_rad=0.0, pitch_rad=0.0)
+    image = render(scene, pose, model, cell_size_m, seed=seed if seed is not None else seq,
                    velocity_ned=(view.vel_north, view.vel_east, view.vel_down))
-    return encode_frame(image, estimator.estimate(view.pose, time_s), model, time_s, seq)
+    return encode_frame(image, estimator.estimate(pose, time_s), model, time_s, seq)
+
+
+def prepare(model: CameraModel) -> None:
+    """Build the model's cached tables (the lens's distortion map, the gain field, the noise
+    bank: about 2 s at 12 MP) ahead of the first exposure, which would otherwise pay for them."""
+    lens_for(model)
+    prepare_degrade(model)

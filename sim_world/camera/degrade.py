@@ -21,9 +21,10 @@ MIN_MOTION_PX = 0.5      # shorter smears are below what a pixel shows
 @lru_cache(maxsize=8)
 def _gain(width: int, height: int, lighting: float, angle_deg: float, vignetting: float,
           cx: float, cy: float) -> np.ndarray:
-    """Brightness factor per pixel: a linear lighting ramp (1 on one side, 1 - lighting on the
-    other) times a radial vignetting falloff (1 at the principal point, 1 - vignetting at the
-    farthest corner, in r^2 as a lens's cos^4 law is near the axis)."""
+    """Brightness factor per pixel, in 1/255 steps (uint8, 255 = 1): a linear lighting ramp (1 on
+    one side, 1 - lighting on the other) times a radial vignetting falloff (1 at the principal
+    point, 1 - vignetting at the farthest corner, in r^2 as a lens's cos^4 law is near the axis).
+    A step of 1/255 is under one grey level on the brightest floor."""
     xs = np.arange(width, dtype=np.float32) - width / 2
     ys = np.arange(height, dtype=np.float32) - height / 2
     gain = np.ones((height, width), np.float32)
@@ -37,18 +38,29 @@ def _gain(width: int, height: int, lighting: float, angle_deg: float, vignetting
         dy = np.arange(height, dtype=np.float32) - cy
         r2 = dx[None, :] ** 2 + dy[:, None] ** 2
         gain = gain * (1.0 - vignetting * r2 / float(r2.max())).astype(np.float32)
-    gain = np.ascontiguousarray(np.repeat(gain[..., None], 3, axis=2))
-    gain.flags.writeable = False
-    return gain
+    gain8 = np.rint(gain * 255.0).astype(np.uint8)
+    gain8 = np.ascontiguousarray(np.repeat(gain8[..., None], 3, axis=2))
+    gain8.flags.writeable = False
+    return gain8
 
 
 @lru_cache(maxsize=2)
-def _noise_bank(width: int, height: int) -> np.ndarray:
-    """Unit Gaussian noise a little larger than a frame; each frame adds a window of it
-    at a random offset (fresh noise per frame costs more than the rest of rendering)."""
+def _noise_bank(width: int, height: int, std: float) -> np.ndarray:
+    """Gaussian noise of `std` grey levels, rounded to whole levels (int16), a little larger than
+    a frame; each frame adds a window of it at a random offset (fresh noise per frame costs more
+    than the rest of rendering)."""
     noise = np.random.default_rng(0).standard_normal((height + NOISE_PAD, width + NOISE_PAD, 3), dtype=np.float32)
+    noise = np.rint(noise * np.float32(std)).astype(np.int16)
     noise.flags.writeable = False
     return noise
+
+
+def prepare_degrade(model: CameraModel) -> None:
+    """Build the tables `degrade` will use for this model."""
+    if model.lighting > 0 or model.vignetting > 0:
+        _gain(model.width, model.height, model.lighting, model.lighting_angle_deg, model.vignetting, model.cx, model.cy)
+    if model.noise_std > 0:
+        _noise_bank(model.width, model.height, model.noise_std)
 
 
 def motion_kernel(dx: float, dy: float) -> np.ndarray:
@@ -80,14 +92,12 @@ def degrade(image: np.ndarray, model: CameraModel, seed: int | None,
         image = cv2.GaussianBlur(image, (0, 0), model.blur_sigma)
     if moving:
         image = cv2.filter2D(image, -1, motion_kernel(*motion_px), borderType=cv2.BORDER_REPLICATE)
-    if not shaded and model.noise_std == 0:
-        return image
-    out = image.astype(np.float32)
+    # Gain and noise in saturating uint8 arithmetic: one pass each, no float copy of the frame.
     if shaded:
-        cv2.multiply(out, _gain(model.width, model.height, model.lighting, model.lighting_angle_deg,
-                                model.vignetting, model.cx, model.cy), dst=out)
+        image = cv2.multiply(image, _gain(model.width, model.height, model.lighting, model.lighting_angle_deg,
+                                          model.vignetting, model.cx, model.cy), scale=1 / 255.0)
     if model.noise_std > 0:
         dy, dx = np.random.default_rng(seed).integers(0, NOISE_PAD, size=2)
-        window = _noise_bank(model.width, model.height)[dy:dy + model.height, dx:dx + model.width]
-        cv2.scaleAdd(window, float(model.noise_std), out, dst=out)
-    return np.clip(out, 0, 255, out=out).astype(np.uint8)
+        window = _noise_bank(model.width, model.height, model.noise_std)[dy:dy + model.height, dx:dx + model.width]
+        image = cv2.add(image, window, dtype=cv2.CV_8U)
+    return image

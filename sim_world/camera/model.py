@@ -42,9 +42,13 @@ KEYS: dict[str, tuple[Any, str]] = {
     "yaw_sigma_deg": (0.0, "1-sigma error of the published yaw (drifting bias plus white noise), degrees"),
     "attitude_sigma_deg": (0.0, "1-sigma white error of the published roll and pitch, degrees"),
     "wobble_deg": (0.0, "hover wobble of the vehicle's roll and pitch (amplitude), degrees"),
+    "gimbal": (1, "1: the camera is stabilised, level whatever the vehicle's attitude (today's camera); "
+                  "0: fixed to the body, it sees the floor through the vehicle's roll and pitch"),
     "landmark_spacing": (0, "cells between the surveyed landmarks the world places (0 = none)"),
+    "goal_pads": (0, "1: goals are green pads of 0.96 cell and robots white 0.8-cell bodies, so a robot on a "
+                     "goal leaves a green frame; 0: goal discs and full-cell robot tags (a robot hides its goal)"),
 }
-INT_KEYS = frozenset({"width", "height", "jpeg_quality", "landmark_spacing"})
+INT_KEYS = frozenset({"width", "height", "jpeg_quality", "landmark_spacing", "goal_pads", "gimbal"})
 
 PRESETS: dict[str, dict[str, float]] = {
     "ideal": {},
@@ -53,7 +57,7 @@ PRESETS: dict[str, dict[str, float]] = {
     "realistic": {"k1": -0.05, "k2": 0.01, "p1": 0.0003, "p2": -0.0002, "vignetting": 0.3, "lighting": 0.15,
                   "lighting_angle_deg": 30.0, "exposure_ms": 4.0, "noise_std": 3.0, "jpeg_quality": 90,
                   "pose_sigma_m": 0.2, "yaw_sigma_deg": 1.5, "attitude_sigma_deg": 0.2, "wobble_deg": 0.3,
-                  "landmark_spacing": 12},
+                  "gimbal": 0, "landmark_spacing": 12, "goal_pads": 1},
 }
 # The world's camera when --camera names no preset. The perception helper flips it to
 # "realistic" once perception copes with it.
@@ -88,6 +92,8 @@ class CameraModel:
     yaw_sigma_deg: float = 0.0
     attitude_sigma_deg: float = 0.0
     wobble_deg: float = 0.0
+    goal_pads: int = 0
+    gimbal: int = 1
 
     def __post_init__(self) -> None:
         if self.width < 16 or self.height < 16:
@@ -118,7 +124,8 @@ class CameraModel:
         if self.exposure_ms > 1000 or self.wobble_deg > 30 or self.attitude_sigma_deg > 30 or self.yaw_sigma_deg > 180:
             raise MissionError("camera: exposure_ms is at most 1000, wobble_deg and attitude_sigma_deg at most 30, "
                                "yaw_sigma_deg at most 180")
-        for name, lo, hi in (("jpeg_quality", 0, 100), ("landmark_spacing", 0, 10_000)):
+        for name, lo, hi in (("jpeg_quality", 0, 100), ("landmark_spacing", 0, 10_000), ("goal_pads", 0, 1),
+                             ("gimbal", 0, 1)):
             v = getattr(self, name)
             if v != int(v) or not lo <= v <= hi:
                 raise MissionError(f"camera: {name} {v} is not a whole number in [{lo}, {hi}]")

@@ -45,6 +45,14 @@ CELL_UNITS = 8
 MARKER_UNITS = 6
 GOAL_RADIUS = 0.38         # of a cell, the green disc
 GOAL_RING = 0.07           # of a cell, the dark ring around it
+# The pad layout (Scene.goal_pads), where a robot on a goal stays recognisable as one: the goal a
+# green square pad of GOAL_PAD cell, the robot a white square body of ROBOT_BODY cell centred in
+# its cell, and on the body its marker (4x4 data + 1-module black border = 6 modules) with half a
+# module of white around it: module = ROBOT_BODY / 7 cell, marker side = 6/7 of the body.
+# On a goal a green frame of (GOAL_PAD - ROBOT_BODY) / 2 = 0.08 cell shows around the body.
+GOAL_PAD = 0.96
+ROBOT_BODY = 0.8
+BODY_MODULES = 7           # across the body: 6 marker modules + 2 half-module margins
 MAX_TEXTURE_PX = 8192
 MAP_STEP_PX = 8            # the distortion map is computed every 8 pixels and interpolated (error ~0.001 px)
 
@@ -74,6 +82,7 @@ class Scene:
     robots: dict[int, Cell] = field(default_factory=dict)
     goals: list[Cell] = field(default_factory=list)
     landmarks: LandmarkSet | None = None
+    goal_pads: bool = False                # the pad layout (see GOAL_PAD); False = goal discs, full-cell tags
 
     def __post_init__(self) -> None:
         free = np.asarray(self.free)
@@ -188,6 +197,48 @@ def _texture(scene: Scene, x0: int, y0: int, x1: int, y1: int, ppc: int, cell_si
         colours = np.pad(colours, ((max(0, -y0), max(0, y1 - h)), (max(0, -x0), max(0, x1 - w)), (0, 0)))
         colours[:, :] = np.where(_inside(x0, y0, x1, y1, w, h)[..., None], colours, np.uint8(OUTSIDE_BGR))
     tex = cv2.resize(colours, (colours.shape[1] * ppc, colours.shape[0] * ppc), interpolation=cv2.INTER_NEAREST_EXACT)
+    if scene.goal_pads:
+        _draw_pads(tex, scene, x0, y0, x1, y1, ppc)
+    else:
+        _draw_discs_and_tags(tex, scene, x0, y0, x1, y1, ppc)
+    if scene.landmarks is not None:
+        _draw_landmarks(tex, scene.landmarks, cell_size_m, x0, y0, ppc)
+    return tex
+
+
+def _square(tex: np.ndarray, cx: float, cy: float, side: float, colour: tuple[int, int, int]) -> None:
+    """A filled axis-aligned square centred at texel coordinates (cx, cy), edges anti-aliased."""
+    shift = 4
+    h = side / 2
+    pts = np.array([[cx - h, cy - h], [cx + h, cy - h], [cx + h, cy + h], [cx - h, cy + h]]) - 0.5
+    cv2.fillConvexPoly(tex, np.round(pts * (1 << shift)).astype(np.int32), colour, cv2.LINE_AA, shift)
+
+
+@lru_cache(maxsize=4096)
+def _body_marker(robot_id: int, side_px: int) -> np.ndarray:
+    """A robot's marker of exactly `side_px` texels (area-resampled from whole-texel modules)."""
+    module = max(1, math.ceil(side_px / MARKER_UNITS))
+    img = _marker(robot_id, module)
+    return img if img.shape[0] == side_px else cv2.resize(img, (side_px, side_px), interpolation=cv2.INTER_AREA)
+
+
+def _draw_pads(tex: np.ndarray, scene: Scene, x0: int, y0: int, x1: int, y1: int, ppc: int) -> None:
+    for gx, gy in scene.goals:
+        if x0 <= gx < x1 and y0 <= gy < y1:
+            _square(tex, (gx - x0 + 0.5) * ppc, (gy - y0 + 0.5) * ppc, GOAL_PAD * ppc, GOAL_BGR)
+    side = round(ROBOT_BODY * MARKER_UNITS / BODY_MODULES * ppc)
+    for rid, (rx, ry) in scene.robots.items():
+        if x0 <= rx < x1 and y0 <= ry < y1:
+            cx, cy = (rx - x0 + 0.5) * ppc, (ry - y0 + 0.5) * ppc
+            _square(tex, cx, cy, ROBOT_BODY * ppc, MARKER_QUIET_BGR)
+            if side >= MARKER_UNITS:
+                px, py = round(cx - side / 2), round(cy - side / 2)
+                tex[py:py + side, px:px + side] = _body_marker(rid, side)
+            else:   # seen from so far that a module is under a texture pixel: a dark blob is all there is
+                _square(tex, cx, cy, ppc / 2, (0, 0, 0))
+
+
+def _draw_discs_and_tags(tex: np.ndarray, scene: Scene, x0: int, y0: int, x1: int, y1: int, ppc: int) -> None:
     shift = 4  # sub-pixel circle centres
     for gx, gy in scene.goals:
         if x0 <= gx < x1 and y0 <= gy < y1:
@@ -203,9 +254,6 @@ def _texture(scene: Scene, x0: int, y0: int, x1: int, y1: int, ppc: int, cell_si
                 tex[py + unit:py + (CELL_UNITS - 1) * unit, px + unit:px + (CELL_UNITS - 1) * unit] = _marker(rid, unit)
             else:   # seen from so far that a module is under a texture pixel: a dark blob is all there is
                 tex[py + ppc // 4:py + ppc - ppc // 4, px + ppc // 4:px + ppc - ppc // 4] = 0
-    if scene.landmarks is not None:
-        _draw_landmarks(tex, scene.landmarks, cell_size_m, x0, y0, ppc)
-    return tex
 
 
 class _Lens(NamedTuple):

@@ -4,10 +4,11 @@ whether it stands on the ground.
 The physics is kinematic: the vehicle moves straight toward its target with its
 horizontal speed and climb limits. Its attitude follows from that motion as a
 multicopter's does: the tilt that produces the horizontal acceleration
-(atan(a / g), forward acceleration = nose down, rightward = roll right), capped
-at MAX_TILT_DEG and lagging by the attitude loop's TILT_TAU_S, plus, in the air,
-a small seeded hover wobble (two incommensurate sines per axis). The camera is
-fixed to the body, so it sees the floor through this attitude. `time_scale`
+(atan(a / g), forward acceleration = nose down, rightward = roll right, capped
+at MAX_TILT_DEG), the acceleration being each step's velocity change spread over
+the attitude loop's lag TILT_TAU_S (first order); plus, in the air,
+a small seeded hover wobble (two incommensurate sines per axis). A camera fixed
+to the body (sim_world.camera, `gimbal=0`) sees the floor through this attitude. `time_scale`
 simulated seconds pass per wall second, so a demo need not wait for real flight.
 
 Frames: local NED with the origin at home (the warehouse grid's top-left corner, at
@@ -34,8 +35,8 @@ YAW_RATE_RAD_S = math.radians(90.0)
 GRAVITY_M_S2 = 9.81
 TERMINAL_SPEED_M_S = 20.0
 PHYSICS_PERIOD_S = 0.02  # wall time between steps
-TILT_TAU_S = 0.15        # attitude loop's lag behind the tilt the acceleration asks for
-MAX_TILT_DEG = 25.0      # PX4 allows MPC_TILTMAX_AIR = 45; a survey flight stays well under it
+TILT_TAU_S = 0.2         # attitude loop's lag: how long a change of velocity takes to fly
+MAX_TILT_DEG = 20.0      # PX4 allows MPC_TILTMAX_AIR = 45; a survey flight stays well under it
 
 
 def step_toward(pos: Vec3, target: Vec3, speed_xy: float, speed_up: float, speed_down: float, dt: float) -> Vec3:
@@ -141,7 +142,7 @@ class Dynamics:
         self._pos: Vec3 = (0.0, 0.0, 0.0)
         self._vel: Vec3 = (0.0, 0.0, 0.0)
         self._yaw = 0.0
-        self._tilt = (0.0, 0.0)          # (roll, pitch) from the acceleration, lagged
+        self._accel = (0.0, 0.0)         # horizontal acceleration (north, east) the attitude produces
         self._attitude = (0.0, 0.0)      # (roll, pitch) with the wobble
         self._rates = (0.0, 0.0)
         self._wobble = Wobble(wobble_deg, seed)
@@ -230,13 +231,18 @@ class Dynamics:
     def _step_attitude(self, dt: float, prev_vel: Vec3) -> None:
         if dt <= 0:
             return
-        target = tilt_for((self._vel[0] - prev_vel[0]) / dt, (self._vel[1] - prev_vel[1]) / dt, self._yaw) \
-            if self._airborne else (0.0, 0.0)
+        # The kinematic velocity changes within a step; the airframe's acceleration is that
+        # change spread by the attitude loop's lag (a first-order filter of time constant TILT_TAU_S).
         k = 1.0 - math.exp(-dt / TILT_TAU_S)
-        self._tilt = tuple(t + k * (g - t) for t, g in zip(self._tilt, target))
+        if self._airborne:
+            inst = ((self._vel[0] - prev_vel[0]) / dt, (self._vel[1] - prev_vel[1]) / dt)
+        else:
+            inst = (0.0, 0.0)
+        self._accel = (self._accel[0] + k * (inst[0] - self._accel[0]), self._accel[1] + k * (inst[1] - self._accel[1]))
+        tilt = tilt_for(self._accel[0], self._accel[1], self._yaw)
         wobble = self._wobble.at(self._sim_time) if self._airborne else (0.0, 0.0)
-        attitude = (self._tilt[0] + wobble[0], self._tilt[1] + wobble[1])
-        self._rates = tuple((a - b) / dt for a, b in zip(attitude, self._attitude))
+        attitude = (tilt[0] + wobble[0], tilt[1] + wobble[1])
+        self._rates = ((attitude[0] - self._attitude[0]) / dt, (attitude[1] - self._attitude[1]) / dt)
         self._attitude = attitude
 
     def _fall(self, dt: float) -> None:
