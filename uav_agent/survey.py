@@ -89,14 +89,16 @@ def survey_poses(width: int, height: int, cell_size_m: float, model: CameraLike,
 
 
 ROBOT_MODULE_CELLS = 1 / 8      # a robot marker's module: the cell is 8 modules wide
-MODULE_PX_PER_SIGMA = 4.0       # a module this many measured blur sigmas wide still reads (the estimate runs low)
-SHARP_SIGMA_PX = 1.0            # below this the image is as sharp as the survey's resolution needs
+SHARP_SIGMA_PX = 1.1            # measured blur of a sharp camera's image (lens resampling, JPEG): 0.6..1.05
 
 
 def px_per_cell_for(blur_px: float, min_px_per_cell: float, module_cells: float = ROBOT_MODULE_CELLS) -> float:
-    """Resolution the survey needs for markers to read through a measured blur of `blur_px`:
-    a module (`module_cells` of a cell; the smallest of robot and landmark markers) must span
-    MODULE_PX_PER_SIGMA blur sigmas. A sharp image keeps `min_px_per_cell`."""
+    """Resolution the survey needs for markers to read through a measured blur of `blur_px`.
+
+    A sharp image keeps `min_px_per_cell`. Past that, the resolution grows with the
+    square of the blur (the estimate runs low as blur grows: measured 1.8 for a true 2,
+    2.3 for a true 3), and with how much smaller than a robot's a landmark's module is."""
     if not math.isfinite(blur_px) or blur_px <= SHARP_SIGMA_PX:
         return min_px_per_cell
-    return max(min_px_per_cell, MODULE_PX_PER_SIGMA * blur_px / module_cells)
+    return max(min_px_per_cell,
+               min_px_per_cell * (blur_px / SHARP_SIGMA_PX) ** 2 * max(1.0, ROBOT_MODULE_CELLS / module_cells))

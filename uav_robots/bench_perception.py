@@ -64,7 +64,7 @@ def bench_scene(spec: str, robots: int, model: CameraModel) -> Scene:
     _, free = resolve_map(spec, 0)
     p = place(free, robots, 1)
     return Scene(free, {(i * 37 + 3) % 1000: c for i, c in enumerate(p.starts)}, p.goals,
-                 scene_landmarks(free, CELL, model))
+                 scene_landmarks(free, CELL, model), goal_pads=bool(model.goal_pads))
 
 
 def simulate(scene: Scene, model: CameraModel, seed: int = 0):

@@ -39,14 +39,17 @@ def goals_in(view: View, grid: tuple[int, int]) -> set[Cell]:
     mask = cv2.morphologyEx(mask * 255, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     if view.valid is not None:
         mask[~view.valid] = 0
-    count, _, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    count, labels, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
     img_h, img_w = mask.shape
     goals: set[Cell] = set()
     for i in range(1, count):
         x, y, bw, bh, area = stats[i]
         if x <= BORDER_PX or y <= BORDER_PX or x + bw >= img_w - BORDER_PX or y + bh >= img_h - BORDER_PX:
             continue  # cut by the image edge, so its centroid lies; a neighbouring frame sees it whole
-        if not GOAL_AREA_CELLS[0] <= area / view.ppc ** 2 <= GOAL_AREA_CELLS[1]:
+        if area / view.ppc ** 2 > GOAL_AREA_CELLS[1]:
+            goals |= _split(labels[y:y + bh, x:x + bw] == i, x, y, view, grid)   # neighbouring pads touch
+            continue
+        if area / view.ppc ** 2 < GOAL_AREA_CELLS[0]:
             continue
         u, v_ = to_floor(centroids[i], view.H_inv)[0]
         cell = (math.floor(u), math.floor(v_))
@@ -60,3 +63,12 @@ def goals_in(view: View, grid: tuple[int, int]) -> set[Cell]:
 def _otsu(values: np.ndarray) -> float:
     t, _ = cv2.threshold(values.reshape(-1, 1).astype(np.uint8), 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
     return float(t)
+
+
+def _split(blob: np.ndarray, x0: int, y0: int, view: View, grid: tuple[int, int]) -> set[Cell]:
+    """Pads of neighbouring goal cells merged into one blob: each cell it covers for the most part."""
+    ys, xs = np.nonzero(blob)
+    uv = to_floor(np.column_stack([xs + x0, ys + y0]).astype(np.float64), view.H_inv)
+    cells, counts = np.unique(np.floor(uv).astype(int), axis=0, return_counts=True)
+    return {(int(cx), int(cy)) for (cx, cy), n in zip(cells, counts)
+            if n / view.ppc ** 2 >= 0.5 and on_grid(int(cx), int(cy), *grid)}

@@ -27,6 +27,8 @@ _DICTIONARY = cv2.aruco.getPredefinedDictionary(ARUCO_DICTIONARY)
 CELL_UNITS = 8                 # the world's marker layout: a robot cell is 8 modules wide,
 MARKER_SIZE_CELLS = 0.75       # a 6-module marker inside a 1-module white quiet zone
 MARKER_BITS = 4                # 4x4 data bits inside the marker's black frame
+MARKER_UNITS = 6               # the marker's side in modules (data + black frame)
+PAD_MARKER_CELLS = 0.8 * 6 / 7  # a robot body of 0.8 cell holding its marker with half a module of white
 DECODE_MODULE_PX = 6           # resampling of a marker module for the in-place read
 DECODE_MIN_CONFIDENCE = 0.04   # of the black-white contrast: the weakest module's margin
 DETECTOR_MAX_CONTRADICTION = 0.25  # measured: true reads >= -0.18, misreads <= -0.30
@@ -86,7 +88,7 @@ _BORDER[1:-1, 1:-1] = True
 _BORDER[2:-2, 2:-2] = False                                    # the marker's black frame
 
 
-def _module_margins(view: View, cell: Cell) -> np.ndarray | None:
+def _module_margins(view: View, cell: Cell, marker_cells: float = MARKER_SIZE_CELLS) -> np.ndarray | None:
     """The 4x4 data modules of the marker in `cell`, read where the geometry says they are.
 
     The homography is known, so the cell is resampled onto its 8x8 module grid
@@ -97,8 +99,10 @@ def _module_margins(view: View, cell: Cell) -> np.ndarray | None:
     which is what fails first on small, blurred, noisy markers."""
     q = DECODE_MODULE_PX
     x, y = cell
-    to_floor = np.array([[1 / (CELL_UNITS * q), 0, x + 0.5 / (CELL_UNITS * q)],
-                         [0, 1 / (CELL_UNITS * q), y + 0.5 / (CELL_UNITS * q)], [0, 0, 1]])
+    # An 8x8 module grid centred on the cell: the marker's 6 modules and one ring outside them.
+    step = marker_cells / MARKER_UNITS / q                     # cells per resampled pixel
+    start = 0.5 - CELL_UNITS / 2 * q * step + step / 2
+    to_floor = np.array([[step, 0, x + start], [0, step, y + start], [0, 0, 1]])
     patch = cv2.warpPerspective(view.gray, view.H @ to_floor, (CELL_UNITS * q, CELL_UNITS * q),
                                 flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
     modules = patch.reshape(CELL_UNITS, q, CELL_UNITS, q)[:, q // 3: q - q // 3, :, q // 3: q - q // 3]
@@ -147,6 +151,11 @@ def read_markers(view: View, candidates: set[Cell], grid: tuple[int, int], warni
     in_place_quality = perimeter * 0.8   # it trusts the pose, not the marker's own corners
     for cell in sorted(candidates | set(by_cell)):
         margins = _module_margins(view, cell)
+        if margins is None or (by_cell.get(cell) is None and _identify(margins)[0] is None):
+            # The pad layout's smaller marker on a white body (sim_world.camera, goal_pads).
+            pad = _module_margins(view, cell, PAD_MARKER_CELLS)
+            if pad is not None:
+                margins = pad
         if margins is None:
             continue   # no clean frame where the pose puts it: a detector read stands alone
         detected = by_cell.get(cell)
