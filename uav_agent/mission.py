@@ -33,6 +33,7 @@ ABORT_LAND_TIMEOUT_S = 60.0
 RELOOK_ROUNDS = 2          # closer looks at unreadable markers, unsure cells, robots that may hide a goal
 RELOOK_MAX_CELLS = 200
 RELOOK_MIN_ALT_M = 3.0
+SURVEY_BORDER = 0.06       # of the image's short side, with a lens: its undistorted corners are empty
 MONITOR_FIRST = 25         # auto monitoring: the first image after this many ticks ...
 MONITOR_SHARE = 0.2        # ... then whenever the images so far cost at most this share of execution time
 
@@ -250,7 +251,7 @@ class Mission:
         first = self._camera = self._capture()  # on the ground: only to learn the camera's intrinsics
         self.frames.clear()
         poses = self._poses = survey_poses(self.info.width, self.info.height, self.info.cell_size_m, first,
-                                           min_px_per_cell=self.cfg.min_px_per_cell)
+                                           min_px_per_cell=self.cfg.min_px_per_cell, border_px=self._border(first))
         self.flight.takeoff(poses[0][2])
         self.watch.expect_airborne(True)
         self._track_altitude()
@@ -305,7 +306,16 @@ class Mission:
         self.uav["survey_px_per_cell"] = round(need, 1)
         self.progress.phase("survey", f"the camera blurs by {sigma:.1f} px: surveying at {need:.0f} px per cell "
                                       f"instead of {self.cfg.min_px_per_cell:g}")
-        return survey_poses(self.info.width, self.info.height, c, camera, min_px_per_cell=need)
+        return survey_poses(self.info.width, self.info.height, c, camera, min_px_per_cell=need,
+                            border_px=self._border(camera))
+
+    @staticmethod
+    def _border(camera: CameraFrame) -> int:
+        """Pixels of each image the survey does not count on: a lens's corners, pulled in by
+        undistortion, and the margin a hover wobble tilts out of view."""
+        from .perception.frames import distortion
+
+        return max(8, round(SURVEY_BORDER * min(camera.width, camera.height))) if any(distortion(camera)) else 8
 
     def _perceive(self):
         # The robots on the network name the ids the camera may see; a marker read as any
@@ -354,7 +364,7 @@ class Mission:
                                   self._camera.fy, (here[0], here[1]))
             self.progress.phase("perceive", f"{len(cells)} cell(s) in doubt ({len(model.unidentified)} unreadable "
                                             f"markers, {len(model.unsure)} unsure, {len(model.robots)} robots / "
-                                            f"{len(model.goals)} goals): {len(points)} closer look(s) from "
+                                            f"{len(model.goals)} goals): a closer look from {len(points)} hover(s) at "
                                             f"{alt:.1f} m (round {attempt})")
             for north, east in points:
                 self.flight.goto(north, east, alt)

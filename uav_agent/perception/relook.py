@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 from collections.abc import Collection, Iterable
 
+import numpy as np
+
 from protocol.grid import Cell
 
 MARGIN = 0.8     # of the footprint: the rest is the overlap that keeps cells whole
@@ -47,6 +49,8 @@ def doubts(model, known: Collection[int] | None, for_map: bool = True) -> list[C
     targets = set(model.unidentified) if missing or known is None else set()
     if for_map:
         targets |= set(model.unsure)
+        ys, xs = np.nonzero(~model.seen)           # beyond every image's edge (a lens, a tilt)
+        targets |= {(int(x), int(y)) for x, y in zip(xs, ys)}
         if len(model.goals) < len(model.robots):
             targets |= set(model.robots.values())
     return sorted(targets)
