@@ -93,7 +93,8 @@ def test_noisy_camera_needs_a_closer_look(tmp_path):
     res = _run(["run", "--map", "warehouse:blocks_x=4,blocks_y=12", "--robots", "30", "--out", str(tmp_path),
                 "--camera", "width=1280,height=960,noise_std=10,blur_sigma=1.3,lighting=0.3"], timeout=240)
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
-    assert "a closer look" in res.stdout
+    # A closer look at what stayed unreadable, or (the blur measured on the first image) a lower survey.
+    assert "a closer look" in res.stdout or "px per cell instead of" in res.stdout
     report = load_report(tmp_path)
     _check_report(report)
     survey_images = 4  # this map at 1280x960 and 20 px per cell

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from protocol.errors import MissionError, ProtocolError
+from protocol.errors import MissionError, PlanningError, ProtocolError
 from protocol.grid import Cell
 from protocol.keys import Keys
 from protocol.messages import (CameraFrame, CameraRequest, MissionEnd, MissionEvent, MissionStatus, Plan, Record,
@@ -31,10 +31,11 @@ from .watch import VehicleWatch
 
 QUERY_TIMEOUT_S = 10.0
 ABORT_LAND_TIMEOUT_S = 60.0
-RELOOK_ROUNDS = 2          # closer looks at markers whose id did not decode
-RELOOK_MAX_CELLS = 20
+RELOOK_ROUNDS = 2          # closer looks at unreadable markers, unsure cells, robots that may hide a goal
+RELOOK_MAX_CELLS = 200
 RELOOK_MIN_ALT_M = 3.0
 PLAN_RESEND_S = 2.0        # a plan not acknowledged within this is put again
+SURVEY_BORDER = 0.06       # of the image's short side, with a lens: its undistorted corners are empty
 MONITOR_FIRST = 25         # auto monitoring: the first image after this many ticks ...
 MONITOR_SHARE = 0.2        # ... then whenever the images so far cost at most this share of execution time
 
@@ -193,6 +194,8 @@ class Mission:
                                   lambda: f"no world on fleet {self.cfg.fleet} within {self.cfg.startup_timeout_s:g} s")
             info = _query(self.transport, self.keys.world_info, WorldInfoRequest(seq=self._next()), WorldInfo, "info")
             self.info = info
+            from .perception import Landmarks
+            self.landmarks = Landmarks.from_info(info)
             self._warm = threading.Thread(target=self._warm_up_planner, name="planner-warm-up", daemon=True)
             self._warm.start()
             self.flight = Flight(self.cfg.mavlink_url)
@@ -255,10 +258,10 @@ class Mission:
         self._status("takeoff", message=f"arming and climbing over MAVLink ({self.cfg.mavlink_url})")
         self.flight.arm()
         self.uav["armed"] = True
-        first = self._capture()  # on the ground: only to learn the camera's intrinsics
+        first = self._camera = self._capture()  # on the ground: only to learn the camera's intrinsics
         self.frames.clear()
         poses = self._poses = survey_poses(self.info.width, self.info.height, self.info.cell_size_m, first,
-                                           min_px_per_cell=self.cfg.min_px_per_cell)
+                                           min_px_per_cell=self.cfg.min_px_per_cell, border_px=self._border(first))
         self.flight.takeoff(poses[0][2])
         self.watch.expect_airborne(True)
         self._track_altitude()
@@ -267,7 +270,20 @@ class Mission:
             self._status("survey", message=f"image {i + 1}/{len(poses)} from {alt:.1f} m")
             self.flight.goto(north, east, alt)
             self._track_altitude()
-            self._capture()
+            frame = self._capture()
+            if i == 0:
+                lower = self._sharp_enough(frame, first)
+                if lower is not None:
+                    poses = self._poses = lower
+                    break
+        else:
+            lower = None
+        if lower is not None:   # the first image was too blurred for the planned height: the lower survey
+            for i, (north, east, alt) in enumerate(poses):
+                self._status("survey", message=f"image {i + 1}/{len(poses)} from {alt:.1f} m (lower: blurred camera)")
+                self.flight.goto(north, east, alt)
+                self._track_altitude()
+                self._capture()
         # Hover over the floor's centre while the robots move: the leader keeps them in view.
         c = self.info.cell_size_m
         centre_n, centre_e = -self.info.height * c / 2, self.info.width * c / 2
@@ -279,6 +295,38 @@ class Mission:
         self._track_altitude()
         self.clock.lap("survey")
 
+    def _sharp_enough(self, frame: CameraFrame, camera: CameraFrame):
+        """None if the survey's resolution reads markers through this image's blur; else the
+        survey poses at the resolution that does (measured from the image's own edges)."""
+        import cv2
+
+        from .perception import decode_frame
+        from .perception.blur import blur_sigma
+        from .perception.frames import undistorted
+        from .survey import ROBOT_MODULE_CELLS, px_per_cell_for, survey_poses
+
+        image, _ = undistorted(decode_frame(frame))
+        sigma = blur_sigma(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))
+        c = self.info.cell_size_m
+        module = ROBOT_MODULE_CELLS if self.landmarks is None else min(ROBOT_MODULE_CELLS, self.landmarks.module_m / c)
+        need = px_per_cell_for(sigma, self.cfg.min_px_per_cell, module)
+        self.uav["survey_blur_px"] = round(sigma, 2)
+        if need <= self.cfg.min_px_per_cell:
+            return None
+        self.uav["survey_px_per_cell"] = round(need, 1)
+        self.progress.phase("survey", f"the camera blurs by {sigma:.1f} px: surveying at {need:.0f} px per cell "
+                                      f"instead of {self.cfg.min_px_per_cell:g}")
+        return survey_poses(self.info.width, self.info.height, c, camera, min_px_per_cell=need,
+                            border_px=self._border(camera))
+
+    @staticmethod
+    def _border(camera: CameraFrame) -> int:
+        """Pixels of each image the survey does not count on: a lens's corners, pulled in by
+        undistortion, and the margin a hover wobble tilts out of view."""
+        from .perception.frames import distortion
+
+        return max(8, round(SURVEY_BORDER * min(camera.width, camera.height))) if any(distortion(camera)) else 8
+
     def _perceive(self):
         # The robots on the network name the ids the camera may see; a marker read as any
         # other id is a misread, not a robot.
@@ -289,41 +337,51 @@ class Mission:
                                           f"within {self.cfg.startup_timeout_s:g} s")
         with self.fleet.cv:
             known = set(self.fleet.alive) or None
+        from .perception.verdict import raise_if_missing
+
         self._status("perceive", message=f"{len(self.frames)} image(s) through OpenCV")
         model = self._see(self.frames, known)
-        if model.unseen:
-            raise MissionError(f"perception: {model.unseen} cells were not seen by any image")
-        if known is not None and set(model.robots) != known:
-            raise MissionError(f"perception: robots {sorted(known - set(model.robots))[:10]} are alive on the network "
-                               f"but not seen ({len(model.unidentified)} unreadable markers)")
-        if expected is not None and len(model.robots) != expected:
-            raise MissionError(f"perception found {len(model.robots)} robots, the mission expects {expected}")
-        if len(model.goals) != len(model.robots):
-            raise MissionError(f"perception found {len(model.robots)} robots but {len(model.goals)} goals")
         self.perception_warnings = model.warnings
+        self.perception_frames = model.frames
+        raise_if_missing(model, known, expected)
         self.clock.lap("perceive")
         return model
 
-    def _see(self, frames: list[CameraFrame], known: set[int] | None):
-        """Perceive `frames`; markers whose id did not decode get a closer look from lower down."""
+    def _perceive_frames(self, frames: list[CameraFrame], known: set[int] | None):
         from .perception import perceive
 
-        model = perceive(frames, self.info.width, self.info.height, self.info.cell_size_m, known_ids=known)
+        return perceive(frames, self.info.width, self.info.height, self.info.cell_size_m, known_ids=known,
+                        landmarks=self.landmarks)
+
+    def _see(self, frames: list[CameraFrame], known: set[int] | None, for_map: bool = True):
+        """Perceive `frames`; what they leave in doubt gets a closer look from lower down: markers
+        whose id did not decode, unsure cells (before they are taken for obstacles), and, when
+        fewer goals than robots were seen, the robots (one may stand on a goal and hide most of it)."""
+        from .perception.relook import doubts, hover_points
+
+        model = self._perceive_frames(frames, known)
         for attempt in range(1, RELOOK_ROUNDS + 1):
-            missing = sorted(set(known or ()) - set(model.robots))
-            if not model.unidentified or not missing:
+            targets = doubts(model, known, for_map)
+            if not targets:
                 break
-            cells = model.unidentified[:RELOOK_MAX_CELLS]
-            self.progress.phase("perceive", f"{len(cells)} unreadable marker(s): a closer look (round {attempt})")
-            scale = 2.0 ** attempt
-            for x, y in cells:
-                c = self.info.cell_size_m
-                alt = max(RELOOK_MIN_ALT_M, self._survey_alt / scale)
-                self.flight.goto(-(y + 0.5) * c, (x + 0.5) * c, alt)
+            cells = targets[:RELOOK_MAX_CELLS]
+            c = self.info.cell_size_m
+            # Lower for detail, but high enough to keep landmarks in view to register by.
+            keep = self.landmarks.view_alt_m(self._camera.width / self._camera.fx) if self.landmarks else 0.0
+            alt = min(self._survey_alt, max(RELOOK_MIN_ALT_M, keep, self._survey_alt / 2.0 ** attempt))
+            here = self.flight.position_ned()
+            points = hover_points(cells, c, alt, self._camera.width, self._camera.height, self._camera.fx,
+                                  self._camera.fy, (here[0], here[1]))
+            self.progress.phase("perceive", f"{len(cells)} cell(s) in doubt ({len(model.unidentified)} unreadable "
+                                            f"markers, {len(model.unsure)} unsure, {len(model.robots)} robots / "
+                                            f"{len(model.goals)} goals): a closer look from {len(points)} hover(s) at "
+                                            f"{alt:.1f} m (round {attempt})")
+            for north, east in points:
+                self.flight.goto(north, east, alt)
                 frame = self._capture()
                 if frames is not self.frames:
                     frames.append(frame)
-            model = perceive(frames, self.info.width, self.info.height, self.info.cell_size_m, known_ids=known)
+            model = self._perceive_frames(frames, known)
             self.flight.goto(*self._hover_ned)
         return model
 
@@ -334,7 +392,7 @@ class Mission:
             self.flight.goto(north, east, alt)
             frames.append(self._capture())
         self.flight.goto(*self._hover_ned)
-        model = self._see(frames, set(self.ids))
+        model = self._see(frames, set(self.ids), for_map=False)
         return {r: tuple(c) for r, c in model.robots.items()}
 
     def _plan(self, model):
@@ -348,9 +406,18 @@ class Mission:
                                         "later runs load numba's cache)")
         self._warm.join()
         self._status("plan", message=f"{len(ids)} robots, planner {planner}, assignment {self.cfg.assign}")
-        result = plan_mission(model.free, [model.robots[i] for i in ids], list(model.goals), planner=planner,
-                              assign=self.cfg.assign, connectivity=self.cfg.connectivity,
-                              time_limit=self.cfg.time_limit_s, fallback=self.cfg.fallback, seed=self.cfg.seed)
+        try:
+            result = plan_mission(model.free, [model.robots[i] for i in ids], list(model.goals), planner=planner,
+                                  assign=self.cfg.assign, connectivity=self.cfg.connectivity,
+                                  time_limit=self.cfg.time_limit_s, fallback=self.cfg.fallback, seed=self.cfg.seed)
+        except PlanningError:
+            from .perception.verdict import explain_unplannable
+
+            # Robots or goals walled in by what the camera read as shelf: a perception failure.
+            why = explain_unplannable(model, self.cfg.connectivity)
+            if why is not None:
+                raise why from None
+            raise
         for note in result.notes:
             self.progress.phase("plan", note)
         self.ids = ids
@@ -477,7 +544,7 @@ class Mission:
         t = time.perf_counter()
         frame = self._capture()
         model = perceive([frame], self.info.width, self.info.height, self.info.cell_size_m,
-                         known_ids=set(self.plan.ids))
+                         known_ids=set(self.plan.ids), landmarks=self.landmarks)
         off = sorted(r for r, c in model.robots.items() if r in self.plan.paths and tuple(c) != self.plan.cell(r, k))
         self.clock.timings["monitor"] = round(self.clock.timings.get("monitor", 0.0) + time.perf_counter() - t, 4)
         self.monitored += 1
@@ -691,6 +758,8 @@ class Mission:
             "perceived": None if model is None else {
                 "rows": format_rows(model.free), "robots": {str(i): list(c) for i, c in sorted(model.robots.items())},
                 "goals": [list(g) for g in model.goals], "images": len(self.frames),
+                "unsure": [list(c) for c in model.unsure],
+                "registration": _registration_summary(getattr(self, "perception_frames", [])),
                 "warnings": getattr(self, "perception_warnings", [])},
             "truth": record.truth if record else None,
             "uav": self.uav,
@@ -720,6 +789,15 @@ class Mission:
                 write_report(self.cfg.out, self.report)
         except Exception as exc:  # noqa: BLE001 - the report must not hide the abort's own error
             self.progress.phase("abort", f"could not write the report: {exc}")
+
+
+def _registration_summary(frames) -> dict[str, Any]:
+    """How the survey's images were placed on the floor: by landmarks or by the pose estimate alone."""
+    errors = [f.reprojection_px for f in frames if f.source == "landmarks" and f.reprojection_px is not None]
+    return {"by_landmarks": sum(f.source == "landmarks" for f in frames),
+            "by_estimate": sum(f.source != "landmarks" for f in frames),
+            "reprojection_px_max": round(max(errors), 3) if errors else None,
+            "reprojection_px_median": round(sorted(errors)[len(errors) // 2], 3) if errors else None}
 
 
 def exit_code(report: dict[str, Any]) -> int:

@@ -86,3 +86,19 @@ def survey_poses(width: int, height: int, cell_size_m: float, model: CameraLike,
         for east in (easts if row % 2 == 0 else easts[::-1]):
             poses.append(SurveyPose(north_m=-south - dn, east_m=east - de, alt_m=alt))
     return poses
+
+
+ROBOT_MODULE_CELLS = 1 / 8      # a robot marker's module: the cell is 8 modules wide
+SHARP_SIGMA_PX = 1.1            # measured blur of a sharp camera's image (lens resampling, JPEG): 0.6..1.05
+
+
+def px_per_cell_for(blur_px: float, min_px_per_cell: float, module_cells: float = ROBOT_MODULE_CELLS) -> float:
+    """Resolution the survey needs for markers to read through a measured blur of `blur_px`.
+
+    A sharp image keeps `min_px_per_cell`. Past that, the resolution grows with the
+    square of the blur (the estimate runs low as blur grows: measured 1.8 for a true 2,
+    2.3 for a true 3), and with how much smaller than a robot's a landmark's module is."""
+    if not math.isfinite(blur_px) or blur_px <= SHARP_SIGMA_PX:
+        return min_px_per_cell
+    return max(min_px_per_cell,
+               min_px_per_cell * (blur_px / SHARP_SIGMA_PX) ** 2 * max(1.0, ROBOT_MODULE_CELLS / module_cells))

@@ -140,7 +140,7 @@ def add_bench_parser(subparsers) -> argparse.ArgumentParser:
     from .bench import PAPER_SIZES
     p = subparsers.add_parser("bench", help="benchmarks: the paper's Table 2 and MovingAI instances",
                               description="Run the planning benchmarks; writes a markdown table and CSV files.")
-    sub = p.add_subparsers(dest="bench", metavar="{paper,movingai,command,secure}", required=True)
+    sub = p.add_subparsers(dest="bench", metavar="{paper,movingai,command,secure,perception}", required=True)
 
     def common(q: argparse.ArgumentParser, limit: float) -> None:
         q.add_argument("--time-limit", type=_positive_float, default=limit,
@@ -190,6 +190,10 @@ def add_bench_parser(subparsers) -> argparse.ArgumentParser:
 
     from .secure_bench import add_secure_bench
     add_secure_bench(sub)
+
+    from .bench_perception import add_parser as add_perception
+    add_perception(sub)
+    sub.choices["perception"].set_defaults(func=cmd_bench)
     return p
 
 
@@ -199,6 +203,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
         if args.bench == "command":
             from .bench_command import run_command_bench
             return run_command_bench(args)
+        if args.bench == "perception":
+            from . import bench_perception
+            return bench_perception.run(args)
         return bench.run_paper(args) if args.bench == "paper" else bench.run_movingai(args)
     except UavRobotsError as exc:
         return _fail(exc)

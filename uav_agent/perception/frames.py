@@ -1,0 +1,70 @@
+"""Camera frames as images: decoding (PNG or JPEG) and lens undistortion.
+
+Everything after this module works on an ideal pinhole image: the frame's
+Brown-Conrady coefficients (OpenCV order k1, k2, p1, p2, k3) are removed once
+per frame by a remap whose maps are cached per calibration, so undistortion
+costs one `cv2.remap`, not one `initUndistortRectifyMap`, per image.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+from protocol.errors import ProtocolError
+from protocol.messages import CameraFrame
+
+
+@dataclass(frozen=True, eq=False)
+class Frame:
+    image: np.ndarray      # BGR uint8, height x width, as the camera took it (distorted)
+    meta: CameraFrame      # its estimated pose, intrinsics and calibration; meta.png is not read (may be empty)
+
+
+def decode_frame(msg: CameraFrame) -> Frame:
+    """CameraFrame (PNG or JPEG bytes) -> Frame; ProtocolError if the image is not what it claims."""
+    image = cv2.imdecode(np.frombuffer(msg.png, np.uint8), cv2.IMREAD_COLOR) if msg.png else None
+    if image is None:
+        encoding = getattr(msg, "encoding", "png")
+        raise ProtocolError(f"CameraFrame: {len(msg.png)} bytes of {encoding} do not decode to an image")
+    if image.shape[:2] != (msg.height, msg.width):
+        raise ProtocolError(f"CameraFrame: image is {image.shape[1]}x{image.shape[0]}, "
+                            f"header says {msg.width}x{msg.height}")
+    return Frame(image=image, meta=msg)
+
+
+def intrinsics(meta: CameraFrame) -> np.ndarray:
+    return np.array([[meta.fx, 0.0, meta.cx], [0.0, meta.fy, meta.cy], [0.0, 0.0, 1.0]])
+
+
+def distortion(meta: CameraFrame) -> tuple[float, float, float, float, float]:
+    return (float(getattr(meta, "k1", 0.0)), float(getattr(meta, "k2", 0.0)), float(getattr(meta, "p1", 0.0)),
+            float(getattr(meta, "p2", 0.0)), float(getattr(meta, "k3", 0.0)))
+
+
+@lru_cache(maxsize=8)
+def _undistort_maps(width: int, height: int, K: tuple[float, ...], dist: tuple[float, ...]
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    k = np.array(K, np.float64).reshape(3, 3)
+    # Same K out as in: the undistorted image keeps the published intrinsics, so the
+    # pinhole geometry downstream needs no second camera matrix.
+    m1, m2 = cv2.initUndistortRectifyMap(k, np.array(dist), None, k, (width, height), cv2.CV_16SC2)
+    # Where the pinhole image has no source pixel (barrel distortion pulls the corners in).
+    valid = cv2.remap(np.full((height, width), 255, np.uint8), m1, m2, cv2.INTER_NEAREST,
+                      borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0
+    for a in (m1, m2, valid):
+        a.flags.writeable = False
+    return m1, m2, valid
+
+
+def undistorted(frame: Frame) -> tuple[np.ndarray, np.ndarray | None]:
+    """The frame's image as an ideal pinhole camera with the same intrinsics would see it, and
+    the mask of its pixels that came from the sensor (None: all of them)."""
+    dist = distortion(frame.meta)
+    if not any(dist):
+        return frame.image, None
+    meta = frame.meta
+    m1, m2, valid = _undistort_maps(meta.width, meta.height, tuple(intrinsics(meta).ravel()), dist)
+    return cv2.remap(frame.image, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), valid

@@ -1,0 +1,171 @@
+"""Frames -> one world model: every view registered, read, and fused by confidence.
+
+Each view votes on each cell it sees with a weight: its registration quality
+(landmarks and a small reprojection error; the bare pose estimate counts
+little), its sharpness, how close to the image centre the cell lies, and how
+clearly the cell read as floor or shelf. A cell whose weighted votes conflict,
+or that only weak views saw, is `unsure`: the mission looks closer before it
+treats such a cell as an obstacle. Robot markers are settled by the summed
+quality of their readings; landmark cells are known shelf and never a robot.
+"""
+from __future__ import annotations
+
+from collections.abc import Collection
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from protocol.errors import MissionError, ProtocolError
+from protocol.grid import Cell
+from protocol.messages import CameraFrame
+
+from .frames import Frame, decode_frame, undistorted
+from .goals import goals_in
+from .markers import Sighting, read_markers, settle
+from .occupancy import cells_in
+from .registration import Landmarks, Registration, register
+from .view import View, px_per_cell, sharpness
+
+ESTIMATE_WEIGHT = 0.05      # a view placed by the pose estimate alone, against one registered by landmarks
+UNSURE_AGREEMENT = 0.5      # |weighted vote| / total weight below this: the views disagree
+UNSURE_WEIGHT = 0.1         # total weight below this: nothing clear saw the cell (a clear view weighs 0.5..1)
+
+
+@dataclass(frozen=True)
+class FrameReport:
+    """How one frame was placed on the floor."""
+    seq: int
+    source: str                       # "landmarks" or "estimate"
+    landmarks: int
+    reprojection_px: float | None
+    pose: tuple[float, ...] | None    # (north, east, down, roll, pitch, yaw) from the landmarks
+    sharpness: float
+
+
+@dataclass(eq=False)
+class WorldModel:
+    free: np.ndarray                   # bool [height, width]; unseen cells are False
+    robots: dict[int, Cell]            # marker id -> cell
+    goals: list[Cell]
+    seen: np.ndarray                   # bool [height, width]: wholly inside at least one image
+    unseen: int                        # cells no image covers
+    unidentified: list[Cell] = field(default_factory=list)  # a marker is there, its id unread
+    warnings: list[str] = field(default_factory=list)
+    unsure: list[Cell] = field(default_factory=list)         # conflicting or weakly seen: blocked until looked at
+    frames: list[FrameReport] = field(default_factory=list)
+
+
+def prepare(item: Frame | CameraFrame, landmarks: Landmarks | None, cell_size_m: float) -> View:
+    frame = decode_frame(item) if isinstance(item, CameraFrame) else item
+    if frame.image.ndim != 3 or frame.image.shape[:2] != (frame.meta.height, frame.meta.width):
+        raise ProtocolError(f"frame at t={frame.meta.time_s:.2f}s: image shape {frame.image.shape} "
+                            f"does not match its {frame.meta.width}x{frame.meta.height} header")
+    image, valid = undistorted(frame)
+    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    reg: Registration = register(gray, frame.meta, landmarks, cell_size_m)
+    ppc = px_per_cell(reg.H, gray.shape)
+    return View(frame, image, gray, valid, reg, reg.H, np.linalg.inv(reg.H), ppc, sharpness(gray, ppc))
+
+
+def _weight(view: View, landmarks: Landmarks | None) -> float:
+    reg = view.reg
+    if not reg.registered and landmarks is not None:
+        return ESTIMATE_WEIGHT * view.sharpness
+    # One landmark pins the view less well than several.
+    return view.sharpness / (1.0 + (reg.reprojection_px or 0.0)) * min(1.0, 0.5 + 0.25 * reg.landmarks)
+
+
+def _within(reg: Registration, cells) -> np.ndarray:
+    """Cells of this view close enough to its landmarks for their placement to hold."""
+    if not np.isfinite(reg.trust_radius) or reg.anchors is None:
+        return np.ones(cells.seen.shape, bool)
+    ny, nx = cells.seen.shape
+    u = np.arange(cells.x0, cells.x0 + nx) + 0.5
+    v = np.arange(cells.y0, cells.y0 + ny) + 0.5
+    d = np.full((ny, nx), np.inf)
+    for au, av in reg.anchors:
+        d = np.minimum(d, np.hypot(u[None, :] - au, v[:, None] - av))
+    return d <= reg.trust_radius
+
+
+def perceive(frames: list[Frame | CameraFrame], width: int, height: int, cell_size_m: float,
+             known_ids: Collection[int] | None = None, landmarks: Landmarks | None = None) -> WorldModel:
+    """Merge overhead frames into a world model of a width x height grid.
+
+    `known_ids` (the fleet's robot ids, if the caller knows them from the
+    network) turns a marker read as any other id into a warning, not a robot.
+    `landmarks` (from WorldInfo) registers each image from the image itself;
+    without them the frames' pose estimates are taken as they are."""
+    if width < 1 or height < 1:
+        raise MissionError(f"perception: grid size {width}x{height} is not positive")
+    if not cell_size_m > 0:
+        raise MissionError(f"perception: cell size must be positive, got {cell_size_m}")
+    grid = (width, height)
+    vote = np.zeros((height, width))       # sum of weight * (+1 floor, -1 shelf)
+    total = np.zeros((height, width))      # sum of weight
+    seen = np.zeros((height, width), bool)
+    marker_vote = np.zeros((height, width))   # weight of the views that see a marker's contrast there
+    shelf_cells = landmarks.cells(cell_size_m, width, height) if landmarks is not None else set()
+    sightings: list[Sighting] = []
+    goals: set[Cell] = set()
+    warnings: list[str] = []
+    reports: list[FrameReport] = []
+    best = 0.0                             # the heaviest view's weight
+    for item in frames:
+        view = prepare(item, landmarks, cell_size_m)
+        reg = view.reg
+        reports.append(FrameReport(int(view.frame.meta.seq), reg.source, reg.landmarks, reg.reprojection_px,
+                                   None if reg.pose is None else tuple(round(v, 4) for v in (
+                                       reg.pose.north_m, reg.pose.east_m, reg.pose.down_m, reg.pose.roll_rad,
+                                       reg.pose.pitch_rad, reg.pose.yaw_rad)), round(view.sharpness, 3)))
+        cells = cells_in(view, grid)
+        if cells is None:
+            continue
+        sl = (slice(cells.y0, cells.y0 + cells.seen.shape[0]), slice(cells.x0, cells.x0 + cells.seen.shape[1]))
+        best = max(best, view.sharpness)   # what a registered view of this quality would weigh
+        trusted = cells.seen & _within(reg, cells)
+        w = _weight(view, landmarks) * cells.centre_weight * (0.25 + 0.75 * cells.confidence) * cells.seen
+        w = np.where(trusted, w, ESTIMATE_WEIGHT * w)
+        vote[sl] += w * np.where(cells.free, 1.0, -1.0)
+        total[sl] += w
+        seen[sl] |= cells.seen
+        if landmarks is not None and not reg.registered:
+            continue   # placed by the estimate alone: its cells vote (weakly), its markers and goals would lie
+        inside = {(int(x) + cells.x0, int(y) + cells.y0) for y, x in zip(*np.nonzero(trusted))}
+        frame_goals = (goals_in(view, grid) - shelf_cells) & inside
+        goals |= frame_goals
+        marker_vote[sl] += w * (cells.marker_like & trusted)
+        ys, xs = np.nonzero(cells.marker_like & trusted)
+        candidates = {(int(x) + cells.x0, int(y) + cells.y0) for x, y in zip(xs, ys)} - frame_goals - shelf_cells
+        sightings += [s for s in read_markers(view, candidates, grid, warnings)
+                      if s.cell not in shelf_cells and s.cell in inside]
+    free = (vote > 0) & seen
+    agreement = np.abs(vote) / np.maximum(total, 1e-12)
+    # Weak against this mission's best view: blur or noise that is the same everywhere
+    # leaves every cell as sure as the images allow.
+    unsure_mask = seen & ((agreement < UNSURE_AGREEMENT) | (total < UNSURE_WEIGHT * best))
+    for x, y in shelf_cells:
+        free[y, x], unsure_mask[y, x] = False, False
+    robots = settle(sightings, known_ids, warnings)
+    robot_cells = set(robots.values())
+    # A marker most views agree on: one misregistered view's contrast at a shelf edge is not one.
+    marker_like = marker_vote > 0.5 * total
+    marked = {(int(x), int(y)) for y, x in zip(*np.nonzero(marker_like))} - shelf_cells
+    unidentified = sorted(marked - robot_cells - goals)
+    for x, y in list(robot_cells) + list(goals) + unidentified:
+        free[y, x] = seen[y, x] = True   # floor under a robot or a goal marker
+        unsure_mask[y, x] = False
+    if unidentified:
+        warnings.append(f"{len(unidentified)} marker(s) seen but not read, at {unidentified[:5]}")
+    unsure = sorted((int(x), int(y)) for y, x in zip(*np.nonzero(unsure_mask)))
+    if unsure:
+        free[unsure_mask] = False      # an obstacle until a closer look says otherwise
+        warnings.append(f"{len(unsure)} cell(s) unsure (views disagree or only weak views), at {unsure[:5]}")
+    estimated = [r.seq for r in reports if r.source != "landmarks"]
+    if landmarks is not None and estimated:
+        warnings.append(f"{len(estimated)} frame(s) placed by the pose estimate alone (too few landmarks): "
+                        f"seq {estimated[:5]}")
+    return WorldModel(free=free, robots=robots, goals=sorted(goals), seen=seen,
+                      unseen=int(width * height - seen.sum()), unidentified=unidentified, warnings=warnings,
+                      unsure=unsure, frames=reports)

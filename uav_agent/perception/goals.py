@@ -1,0 +1,74 @@
+"""Goal pads: saturated green, found by hue and saturation relative to the image.
+
+Hue and saturation do not change when the light dims, so the split does not
+depend on the exposure; brightness only has to stand clear of the image's
+darkest parts (a dimmed, noisy shelf can show any hue). A robot parked on a
+goal leaves only a green frame around its white body: the frame's blob is
+centred on the cell like the pad's, so it reads as the same goal.
+"""
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from protocol.grid import Cell, on_grid
+
+from .view import View, to_floor
+
+GREEN_HUE = (40, 85)             # OpenCV hue (0..180): green, away from the shelves' brown and the outside's blue
+MIN_SATURATION = 70              # floor grey under heavy noise stays well below
+DARK_FRACTION = 0.3              # of the image's bright level: darker pixels carry no colour to trust
+GOAL_AREA_CELLS = (0.12, 1.05)   # a pad (up to ~0.92 cell^2) or the frame a robot leaves of it (~0.25)
+MAX_CENTRE_OFFSET = 0.3          # of a cell: a blob's centre lies near its cell's centre
+BORDER_PX = 2
+
+
+def goals_in(view: View, grid: tuple[int, int]) -> set[Cell]:
+    hsv = cv2.cvtColor(view.image, cv2.COLOR_BGR2HSV)
+    h, s, v = cv2.split(hsv)
+    bright = float(np.percentile(v, 95))
+    mask = ((h >= GREEN_HUE[0]) & (h <= GREEN_HUE[1]) & (v >= DARK_FRACTION * bright)).astype(np.uint8)
+    hue_s = s[mask > 0]
+    if hue_s.size == 0:
+        return set()
+    # The split between grey-with-noise and a pad's saturation, from this image's own pixels.
+    sat_thr = max(MIN_SATURATION, _otsu(hue_s)) if hue_s.size > 50 else MIN_SATURATION
+    mask &= (s >= sat_thr).astype(np.uint8)
+    mask = cv2.morphologyEx(mask * 255, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    if view.valid is not None:
+        mask[~view.valid] = 0
+    count, labels, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    img_h, img_w = mask.shape
+    goals: set[Cell] = set()
+    for i in range(1, count):
+        x, y, bw, bh, area = stats[i]
+        if x <= BORDER_PX or y <= BORDER_PX or x + bw >= img_w - BORDER_PX or y + bh >= img_h - BORDER_PX:
+            continue  # cut by the image edge, so its centroid lies; a neighbouring frame sees it whole
+        if area / view.ppc ** 2 > GOAL_AREA_CELLS[1]:
+            goals |= _split(labels[y:y + bh, x:x + bw] == i, x, y, view, grid)   # neighbouring pads touch
+            continue
+        if area / view.ppc ** 2 < GOAL_AREA_CELLS[0]:
+            continue
+        u, v_ = to_floor(centroids[i], view.H_inv)[0]
+        cell = (math.floor(u), math.floor(v_))
+        if max(abs(u - cell[0] - 0.5), abs(v_ - cell[1] - 0.5)) > MAX_CENTRE_OFFSET:
+            continue
+        if on_grid(*cell, *grid):
+            goals.add(cell)
+    return goals
+
+
+def _otsu(values: np.ndarray) -> float:
+    t, _ = cv2.threshold(values.reshape(-1, 1).astype(np.uint8), 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
+    return float(t)
+
+
+def _split(blob: np.ndarray, x0: int, y0: int, view: View, grid: tuple[int, int]) -> set[Cell]:
+    """Pads of neighbouring goal cells merged into one blob: each cell it covers for the most part."""
+    ys, xs = np.nonzero(blob)
+    uv = to_floor(np.column_stack([xs + x0, ys + y0]).astype(np.float64), view.H_inv)
+    cells, counts = np.unique(np.floor(uv).astype(int), axis=0, return_counts=True)
+    return {(int(cx), int(cy)) for (cx, cy), n in zip(cells, counts)
+            if n / view.ppc ** 2 >= 0.5 and on_grid(int(cx), int(cy), *grid)}

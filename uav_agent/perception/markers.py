@@ -1,0 +1,194 @@
+"""Robots by their ArUco marker (DICT_4X4_1000, id = robot id).
+
+Markers are found by the detector in the whole (undistorted) image, the marker
+centre through the view's homography to a floor point, hence a cell; then every
+marker-like cell is also read in place (resampled onto its module grid by the
+homography): that read rescues small, blurred or noisy markers whose outline
+the detector misses, and vetoes a detector read its modules contradict. Both
+need the registration to be right, which the landmarks give.
+"""
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Collection
+from dataclasses import dataclass
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+from protocol.grid import Cell, on_grid
+
+from .view import View, to_floor
+
+ARUCO_DICTIONARY = cv2.aruco.DICT_4X4_1000
+_DICTIONARY = cv2.aruco.getPredefinedDictionary(ARUCO_DICTIONARY)
+CELL_UNITS = 8                 # the world's marker layout: a robot cell is 8 modules wide,
+MARKER_SIZE_CELLS = 0.75       # a 6-module marker inside a 1-module white quiet zone
+MARKER_BITS = 4                # 4x4 data bits inside the marker's black frame
+MARKER_UNITS = 6               # the marker's side in modules (data + black frame)
+PAD_MARKER_CELLS = 0.8 * 6 / 7  # a robot body of 0.8 cell holding its marker with half a module of white
+DECODE_MODULE_PX = 6           # resampling of a marker module for the in-place read
+DECODE_MIN_CONFIDENCE = 0.04   # of the black-white contrast: the weakest module's margin
+DETECTOR_MAX_CONTRADICTION = 0.25  # measured: true reads >= -0.18, misreads <= -0.30
+MIN_MARKER_CONTRAST = 0.3      # (white - black) / white of a readable marker
+
+
+@lru_cache(maxsize=16)
+def _detector(marker_perimeter_rate: float) -> cv2.aruco.ArucoDetector:
+    params = cv2.aruco.DetectorParameters()
+    # The altitude fixes a marker's size in pixels: candidates far off it are
+    # shelves or noise, and skipping them makes detection several times faster.
+    params.minMarkerPerimeterRate = 0.6 * marker_perimeter_rate
+    params.maxMarkerPerimeterRate = 1.6 * marker_perimeter_rate
+    # Sample bits on a finer grid and away from module edges: survey markers are ~15 px.
+    params.perspectiveRemovePixelPerCell = 8
+    params.perspectiveRemoveIgnoredMarginPerCell = 0.3
+    # A marker's inside is black and white; a plain shelf or floor square is not worth decoding
+    # (each decode searches the whole dictionary: thousands of shelf squares cost seconds).
+    params.minOtsuStdDev = MIN_CANDIDATE_STD
+    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    return cv2.aruco.ArucoDetector(_DICTIONARY, params)
+
+MIN_CANDIDATE_STD = 15.0   # grey std inside a marker candidate (a marker's is ~100, a blank square's noise < 10)
+
+
+@dataclass(frozen=True)
+class Sighting:
+    robot: int
+    cell: Cell
+    quality: float     # marker perimeter in pixels, discounted near the image edge or for in-place reads
+
+
+def _sighting(view: View, quad: np.ndarray, rid: int, grid: tuple[int, int], warnings: list[str]
+              ) -> Sighting | None:
+    floor = to_floor(quad, view.H_inv)
+    side = float(np.mean(np.linalg.norm(floor - np.roll(floor, 1, axis=0), axis=1)))
+    centre = floor.mean(axis=0)
+    cell = (math.floor(centre[0]), math.floor(centre[1]))
+    offset = float(np.abs(centre - np.array(cell) - 0.5).max())
+    # A true marker is 0.75 cell wide and centred in its cell; anything else is a misread.
+    if not (0.6 * MARKER_SIZE_CELLS < side < 1.4 * MARKER_SIZE_CELLS) or offset > 0.25:
+        warnings.append(f"ignored marker {rid} at {cell}: {side:.2f} cell wide, {offset:.2f} cell off centre")
+        return None
+    if not on_grid(*cell, *grid):
+        warnings.append(f"ignored marker {rid} seen off the grid at {cell}")
+        return None
+    img_h, img_w = view.gray.shape
+    edge = min(quad[:, 0].min(), quad[:, 1].min(), img_w - 1 - quad[:, 0].max(), img_h - 1 - quad[:, 1].max())
+    perimeter = float(cv2.arcLength(quad.astype(np.float32), True))
+    return Sighting(rid, cell, perimeter * min(1.0, 0.5 + edge / 100.0))
+
+
+_RING = np.zeros((CELL_UNITS, CELL_UNITS), bool)
+_RING[[0, -1], :] = _RING[:, [0, -1]] = True                   # white quiet zone
+_BORDER = np.zeros((CELL_UNITS, CELL_UNITS), bool)
+_BORDER[1:-1, 1:-1] = True
+_BORDER[2:-2, 2:-2] = False                                    # the marker's black frame
+
+
+def _module_margins(view: View, cell: Cell, marker_cells: float = MARKER_SIZE_CELLS) -> np.ndarray | None:
+    """The 4x4 data modules of the marker in `cell`, read where the geometry says they are.
+
+    The homography is known, so the cell is resampled onto its 8x8 module grid
+    and each module read at its centre, with the white quiet zone and the black
+    frame as references. Returns each module's brightness minus the black-white
+    midpoint, as a fraction of the contrast (> 0: a white bit), or None when the
+    cell does not show a marker's frame. This needs no contour of the marker,
+    which is what fails first on small, blurred, noisy markers."""
+    q = DECODE_MODULE_PX
+    x, y = cell
+    # An 8x8 module grid centred on the cell: the marker's 6 modules and one ring outside them.
+    step = marker_cells / MARKER_UNITS / q                     # cells per resampled pixel
+    start = 0.5 - CELL_UNITS / 2 * q * step + step / 2
+    to_floor = np.array([[step, 0, x + start], [0, step, y + start], [0, 0, 1]])
+    patch = cv2.warpPerspective(view.gray, view.H @ to_floor, (CELL_UNITS * q, CELL_UNITS * q),
+                                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+    modules = patch.reshape(CELL_UNITS, q, CELL_UNITS, q)[:, q // 3: q - q // 3, :, q // 3: q - q // 3]
+    modules = modules.astype(np.float32).mean(axis=(1, 3))
+    white, black = float(np.median(modules[_RING])), float(np.median(modules[_BORDER]))
+    # Relative contrast: the same marker under half the light is still a marker.
+    if white - black < MIN_MARKER_CONTRAST * white:
+        return None
+    threshold = (white + black) / 2
+    if (modules[_RING] < threshold).sum() > 2 or (modules[_BORDER] > threshold).sum() > 2:
+        return None
+    return (modules[2:-2, 2:-2] - threshold) / (white - black)
+
+
+def _identify(margins: np.ndarray) -> tuple[int | None, float]:
+    """(id or None, confidence = the weakest module's margin)."""
+    found, rid, _ = _DICTIONARY.identify((margins > 0).astype(np.uint8), 0.0)
+    return (int(rid), float(np.abs(margins).min())) if found else (None, 0.0)
+
+
+@lru_cache(maxsize=1024)
+def _code(rid: int) -> tuple[np.ndarray, ...]:
+    """A marker's data bits as +1 (white) / -1 (black), in its four rotations."""
+    bits = cv2.aruco.Dictionary.getBitsFromByteList(_DICTIONARY.bytesList[rid:rid + 1], MARKER_BITS)
+    signs = 2.0 * bits.astype(np.float32) - 1.0
+    return tuple(np.rot90(signs, k) for k in range(4))
+
+
+def _support(margins: np.ndarray, rid: int) -> float:
+    """How well the modules fit marker `rid`: the worst module's signed margin (< 0: contradicts)."""
+    return max(float((margins * signs).min()) for signs in _code(rid))
+
+
+def read_markers(view: View, candidates: set[Cell], grid: tuple[int, int], warnings: list[str]
+                  ) -> list[Sighting]:
+    """ArUco detection over the whole image, checked against, and completed by, an
+    in-place read of every marker-like cell."""
+    img_h, img_w = view.gray.shape
+    perimeter = 4 * MARKER_SIZE_CELLS * view.ppc
+    corners, ids, _ = _detector(round(perimeter / max(img_w, img_h), 4)).detectMarkers(view.gray)
+    by_cell: dict[Cell, Sighting] = {}
+    for quad, rid in zip(corners, [] if ids is None else ids.ravel().tolist()):
+        s = _sighting(view, quad.reshape(4, 2).astype(np.float64), rid, grid, warnings)
+        if s is not None:
+            by_cell[s.cell] = s
+    in_place_quality = perimeter * 0.8   # it trusts the pose, not the marker's own corners
+    for cell in sorted(candidates | set(by_cell)):
+        margins = _module_margins(view, cell)
+        if margins is None or (by_cell.get(cell) is None and _identify(margins)[0] is None):
+            # The pad layout's smaller marker on a white body (sim_world.camera, goal_pads).
+            pad = _module_margins(view, cell, PAD_MARKER_CELLS)
+            if pad is not None:
+                margins = pad
+        if margins is None:
+            continue   # no clean frame where the pose puts it: a detector read stands alone
+        detected = by_cell.get(cell)
+        # Detector misreads (corners misplaced on a small marker) leave modules that
+        # contradict the claimed code; true reads never do by this much.
+        if detected is not None and _support(margins, detected.robot) < -DETECTOR_MAX_CONTRADICTION:
+            warnings.append(f"dropped marker {detected.robot} at {cell}: its modules read otherwise")
+            del by_cell[cell]
+            detected = None
+        if detected is None:
+            rid, confidence = _identify(margins)
+            if rid is not None and confidence >= DECODE_MIN_CONFIDENCE:
+                by_cell[cell] = Sighting(rid, cell, in_place_quality)
+    return list(by_cell.values())
+
+
+
+def settle(sightings: list[Sighting], known_ids: Collection[int] | None, warnings: list[str]) -> dict[int, Cell]:
+    """One cell per id and one id per cell, by summed quality of the readings."""
+    score: dict[tuple[int, Cell], float] = defaultdict(float)
+    for s in sightings:
+        if known_ids is not None and s.robot not in known_ids:
+            warnings.append(f"ignored marker {s.robot} at {s.cell}: not a known robot id")
+            continue
+        score[(s.robot, s.cell)] += s.quality
+    robots: dict[int, Cell] = {}
+    taken: dict[Cell, int] = {}
+    for (rid, cell), _ in sorted(score.items(), key=lambda kv: -kv[1]):
+        if rid in robots:
+            warnings.append(f"marker {rid} read at {robots[rid]} and at {cell}: kept {robots[rid]}, the clearer")
+        elif cell in taken:
+            warnings.append(f"cell {cell} read as marker {taken[cell]} and as {rid}: kept {taken[cell]}, the clearer")
+        else:
+            robots[rid] = cell
+            taken[cell] = rid
+    return dict(sorted(robots.items()))

@@ -1,0 +1,292 @@
+"""Where each image was taken, from the image itself: surveyed floor fiducials.
+
+The pose in a `CameraFrame` is the vehicle's estimate, off by its stated sigma
+(tens of centimetres, a degree or more of yaw): far too much to place cells and
+markers. The world's surveyed landmarks (ArUco markers at known floor
+positions, `WorldInfo.landmarks`) give each image its own registration:
+detect them in the undistorted image, name each detection's instance by the
+nearest surveyed marker with that id to where the pose estimate predicts it
+(ids repeat only with a period far beyond any pose error), reject outliers with
+a RANSAC homography, then solve the camera pose (solvePnP, IPPE: the points are
+coplanar) and derive the floor homography from it. Roll and pitch come out of
+the solve, so a tilted camera is handled like a level one.
+
+Too few landmarks in view: the estimate (with its stated sigma) is all there is,
+and the frame is marked as such so that fusion trusts its cells less.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+from protocol.errors import MissionError, ProtocolError
+from protocol.grid import Cell
+from protocol.messages import CameraFrame, WorldInfo
+
+from .frames import intrinsics
+
+MIN_LANDMARKS = 2          # one small marker under blur leaves the yaw loose by degrees
+SINGLE_LANDMARK_PX = 40.0  # a landmark this many pixels wide registers an image alone
+SINGLE_TRUST = 0.15        # cells of trusted radius per pixel of a lone landmark's side
+FULL_POSE_LANDMARKS = 3    # from this many, the tilt too comes from the image
+LEVEL_RANSAC_M = 0.1       # inlier threshold of the level fit, metres on the floor
+MAX_REPROJECTION_PX = 2.5  # an accepted registration's RMS error over its inliers
+QUIET_ZONE = 1 / 0.75      # a landmark's white block, as a multiple of its black square's side
+
+# Camera axes (columns) in the vehicle's body frame (x forward, y right, z down):
+# a nadir camera whose image right is the body's right and image up its nose.
+_CAMERA_IN_BODY = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
+MIN_CANDIDATE_STD = 15.0   # grey std inside a marker candidate (a marker's is ~100, a blank square's noise < 10)
+
+
+@dataclass(frozen=True, eq=False)
+class Landmarks:
+    """The surveyed fiducials: family (OpenCV ArUco dictionary), black-square side, centres by id."""
+    family: str
+    size_m: float
+    by_id: dict[int, np.ndarray]    # id -> (k, 2) array of (east_m, north_m), k >= 1
+
+    @classmethod
+    def from_info(cls, info: WorldInfo) -> Landmarks | None:
+        family = getattr(info, "landmark_family", "")
+        marks = getattr(info, "landmarks", [])
+        if not family or not marks or not getattr(info, "landmark_size_m", 0.0) > 0:
+            return None
+        if not hasattr(cv2.aruco, family):
+            raise MissionError(f"world info: landmark family {family!r} is not an OpenCV ArUco dictionary")
+        by_id: dict[int, list[tuple[float, float]]] = {}
+        for rid, east, north in marks:
+            by_id.setdefault(int(rid), []).append((float(east), float(north)))
+        return cls(family, float(info.landmark_size_m), {k: np.array(v, np.float64) for k, v in by_id.items()})
+
+    @property
+    def module_m(self) -> float:
+        """Side of one module of a landmark (its black square is markerSize + 2 modules wide)."""
+        bits = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.family)).markerSize
+        return self.size_m / (bits + 2)
+
+    def view_alt_m(self, footprint_per_m: float) -> float:
+        """Height from which an image `footprint_per_m` metres wide per metre of height spans
+        2.5 landmark spacings (the median distance between neighbours): two or more in view."""
+        pts = np.concatenate(list(self.by_id.values()))
+        if len(pts) < 2:
+            return 0.0
+        d = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=2) if len(pts) <= 2000 else None
+        if d is None:   # a big table: neighbours within a sample are enough for a median
+            sample = pts[:: max(1, len(pts) // 1000)]
+            d = np.linalg.norm(sample[:, None, :] - pts[None, :, :], axis=2)
+        d[d == 0] = np.inf
+        return float(2.5 * np.median(d.min(axis=1)) / footprint_per_m)
+
+    def cells(self, cell_size_m: float, width: int, height: int) -> set[Cell]:
+        """Grid cells a landmark (with its quiet zone) covers: known shelf, never a robot."""
+        half = QUIET_ZONE * self.size_m / 2
+        out: set[Cell] = set()
+        for centres in self.by_id.values():
+            for east, north in centres:
+                # A hair inside the block, so that a block edge on a cell edge takes no extra cell.
+                u0, u1 = (east - half) / cell_size_m + 1e-6, (east + half) / cell_size_m - 1e-6
+                v0, v1 = (-north - half) / cell_size_m + 1e-6, (-north + half) / cell_size_m - 1e-6
+                for x in range(max(0, math.floor(u0)), min(width, math.ceil(u1))):
+                    for y in range(max(0, math.floor(v0)), min(height, math.ceil(v1))):
+                        out.add((x, y))
+        return out
+
+
+@dataclass(frozen=True)
+class CameraPoseEstimate:
+    north_m: float
+    east_m: float
+    down_m: float
+    roll_rad: float
+    pitch_rad: float
+    yaw_rad: float
+
+
+@dataclass(frozen=True, eq=False)
+class Registration:
+    """Floor (cells: u = east/c, v = -north/c) -> undistorted pixels, and how it was found."""
+    H: np.ndarray
+    source: str                            # "landmarks" (from the image) or "estimate" (the frame's pose)
+    landmarks: int = 0                     # landmarks used (RANSAC inliers)
+    reprojection_px: float | None = None   # RMS over their corners
+    pose: CameraPoseEstimate | None = None
+    notes: list[str] = field(default_factory=list)
+    anchors: np.ndarray | None = None      # (k, 2) floor cells of the landmarks used
+    trust_radius: float = math.inf         # cells from an anchor within which the placement holds
+
+    @property
+    def registered(self) -> bool:
+        return self.source == "landmarks"
+
+
+def _body_to_ned(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
+    rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    return rz @ ry @ rx
+
+
+def _floor_homography(K: np.ndarray, ned_to_cam: np.ndarray, position_ned: np.ndarray, cell_size_m: float
+                      ) -> np.ndarray:
+    # Floor point (u, v) in cells is NED (-v c, u c, 0).
+    floor_to_ned = np.array([[0.0, -cell_size_m, 0.0], [cell_size_m, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    M = ned_to_cam @ floor_to_ned
+    M[:, 2] -= ned_to_cam @ position_ned
+    return K @ M
+
+
+def homography(meta: CameraFrame, cell_size_m: float) -> np.ndarray:
+    """Floor cells -> pixels from the frame's own pose estimate and attitude (the prior)."""
+    roll, pitch = float(getattr(meta, "roll_rad", 0.0)), float(getattr(meta, "pitch_rad", 0.0))
+    numbers = (meta.fx, meta.fy, meta.cx, meta.cy, meta.north_m, meta.east_m, meta.down_m, meta.yaw_rad, roll, pitch)
+    if not all(math.isfinite(v) for v in numbers) or meta.fx <= 0 or meta.fy <= 0:
+        raise ProtocolError(f"frame at t={meta.time_s:.2f}s: pose or intrinsics are not finite, positive numbers")
+    if not meta.down_m < 0:
+        raise MissionError(f"frame at t={meta.time_s:.2f}s: camera down={meta.down_m} m is not above the floor")
+    cam_to_ned = _body_to_ned(roll, pitch, meta.yaw_rad) @ _CAMERA_IN_BODY
+    return _floor_homography(intrinsics(meta), cam_to_ned.T, np.array([meta.north_m, meta.east_m, meta.down_m]),
+                             cell_size_m)
+
+
+@lru_cache(maxsize=16)
+def _detector(family: str, perimeter_rate: float) -> cv2.aruco.ArucoDetector:
+    params = cv2.aruco.DetectorParameters()
+    # The altitude fixes a landmark's size in pixels: skipping candidates far off it
+    # (shelf edges, robot markers) makes detection several times faster.
+    params.minMarkerPerimeterRate = max(0.005, 0.5 * perimeter_rate)
+    params.maxMarkerPerimeterRate = min(4.0, 2.0 * perimeter_rate)
+    # A marker's inside is black and white; a plain shelf or floor square is not worth decoding
+    # (each decode searches the whole dictionary: thousands of shelf squares cost seconds).
+    params.minOtsuStdDev = MIN_CANDIDATE_STD
+    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    return cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, family)), params)
+
+
+def _corners_floor(centre_en: np.ndarray, size_m: float, cell_size_m: float) -> np.ndarray:
+    """A landmark's four corners in ArUco order (top-left, top-right, bottom-right,
+    bottom-left; its top faces north) as floor cells (u, v)."""
+    u, v, h = centre_en[0] / cell_size_m, -centre_en[1] / cell_size_m, size_m / 2 / cell_size_m
+    return np.array([[u - h, v - h], [u + h, v - h], [u + h, v + h], [u - h, v + h]])
+
+
+def _pose_from(rvec: np.ndarray, tvec: np.ndarray) -> tuple[np.ndarray, CameraPoseEstimate]:
+    R, _ = cv2.Rodrigues(rvec)                 # NED -> camera
+    position = (-R.T @ tvec).ravel()
+    body = R.T @ _CAMERA_IN_BODY.T             # body -> NED
+    pitch = -math.asin(max(-1.0, min(1.0, body[2, 0])))
+    roll = math.atan2(body[2, 1], body[2, 2])
+    yaw = math.atan2(body[1, 0], body[0, 0])
+    return R, CameraPoseEstimate(float(position[0]), float(position[1]), float(position[2]), roll, pitch, yaw)
+
+
+def register(gray: np.ndarray, meta: CameraFrame, landmarks: Landmarks | None, cell_size_m: float) -> Registration:
+    """The floor homography of one undistorted grey image; from landmarks when enough are seen."""
+    prior = homography(meta, cell_size_m)
+    if landmarks is None:
+        return Registration(prior, "estimate", notes=["no surveyed landmarks"])
+    K = intrinsics(meta)
+    side_px = landmarks.size_m * min(meta.fx, meta.fy) / max(-meta.down_m, 1e-6)
+    corners, ids, _ = _detector(landmarks.family, round(4 * side_px / max(gray.shape), 4)).detectMarkers(gray)
+    if ids is None:
+        return Registration(prior, "estimate", notes=["no landmark in view"])
+    prior_inv = np.linalg.inv(prior)
+    # How far the estimate may put a landmark from where it is: position error plus
+    # the yaw error swung over the footprint, generously.
+    alt = -meta.down_m
+    gate_m = 2.0 + 4.0 * (getattr(meta, "pose_sigma_m", 0.0) + alt * math.radians(getattr(meta, "yaw_sigma_deg", 0.0)
+                                                                                      + 2.0))
+    floor_pts, image_pts, names = [], [], []
+    for quad, lid in zip(corners, ids.ravel().tolist()):
+        table = landmarks.by_id.get(int(lid))
+        if table is None:
+            continue
+        quad = quad.reshape(4, 2).astype(np.float64)
+        u, v = cv2.perspectiveTransform(quad.mean(axis=0).reshape(1, 1, 2), prior_inv).ravel()
+        predicted = np.array([u * cell_size_m, -v * cell_size_m])
+        d = np.linalg.norm(table - predicted, axis=1)
+        k = int(d.argmin())
+        if d[k] > gate_m:
+            continue
+        floor_pts.append(_corners_floor(table[k], landmarks.size_m, cell_size_m))
+        image_pts.append(quad)
+        names.append((int(lid), k))
+    # One landmark's corners fix the yaw to within (corner error / its side): enough when it is large.
+    least = 1 if side_px >= SINGLE_LANDMARK_PX else MIN_LANDMARKS
+    if len(set(names)) < least:
+        return Registration(prior, "estimate", notes=[f"{len(set(names))} landmark(s) in view, "
+                                                      f"{least} needed"])
+    floor = np.concatenate(floor_pts)
+    image = np.concatenate(image_pts)
+    ned = np.column_stack([-floor[:, 1] * cell_size_m, floor[:, 0] * cell_size_m, np.zeros(len(floor))])
+    level = _level_fit(ned, image, meta)
+    if level is None:
+        return Registration(prior, "estimate", notes=["landmarks disagree (RANSAC)"])
+    R, pose, inliers = level
+    used = {names[i // 4] for i in np.nonzero(inliers)[0]}
+    solver = "level"
+    # Three or more landmarks spread over the image pin the tilt better than the
+    # vehicle's attitude estimate: refine all six degrees of freedom from the level fit.
+    if len(used) >= FULL_POSE_LANDMARKS:
+        rvec, _ = cv2.Rodrigues(R)
+        tvec = -R @ np.array([pose.north_m, pose.east_m, pose.down_m])
+        rvec, tvec = cv2.solvePnPRefineLM(ned[inliers], image[inliers], K, None, rvec, tvec.reshape(3, 1))
+        R6, pose6 = _pose_from(rvec, tvec)
+        if _rms(ned[inliers], image[inliers], K, R6, pose6) < _rms(ned[inliers], image[inliers], K, R, pose):
+            R, pose, solver = R6, pose6, "full"
+    rms = _rms(ned[inliers], image[inliers], K, R, pose)
+    if not pose.down_m < 0:
+        return Registration(prior, "estimate", notes=["landmarks put the camera under the floor"])
+    if rms > MAX_REPROJECTION_PX:
+        return Registration(prior, "estimate", landmarks=len(used), reprojection_px=rms,
+                            notes=[f"landmark fit {rms:.1f} px RMS, over {MAX_REPROJECTION_PX} px"])
+    H = _floor_homography(K, R, np.array([pose.north_m, pose.east_m, pose.down_m]), cell_size_m)
+    anchors = np.array([floor[i * 4: i * 4 + 4].mean(axis=0) for i, name in enumerate(names) if name in used])
+    # One landmark leaves the yaw uncertain by about a pixel over its side: the placement
+    # drifts with distance from it, a tenth of a cell at SINGLE_TRUST cells per pixel of side.
+    radius = SINGLE_TRUST * side_px if len(used) == 1 else math.inf
+    return Registration(H, "landmarks", landmarks=len(used), reprojection_px=rms, pose=pose, notes=[solver],
+                        anchors=anchors, trust_radius=radius)
+
+
+def _rms(ned: np.ndarray, image: np.ndarray, K: np.ndarray, R: np.ndarray, pose: CameraPoseEstimate) -> float:
+    cam = (ned - np.array([pose.north_m, pose.east_m, pose.down_m])) @ R.T
+    px = cam[:, :2] / cam[:, 2:3] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+    return float(np.sqrt(np.mean(np.sum((px - image) ** 2, axis=1))))
+
+
+def _level_fit(ned: np.ndarray, image: np.ndarray, meta: CameraFrame
+               ) -> tuple[np.ndarray, CameraPoseEstimate, np.ndarray] | None:
+    """Position, height and yaw from floor points, the roll and pitch taken from the estimate.
+
+    Each pixel's ray is turned by the estimated roll and pitch into a level camera,
+    whose view of the floor is a similarity: scale = height, rotation = yaw, shift =
+    position. A 4-parameter RANSAC fit (cv2.estimateAffinePartial2D) is well posed
+    with a single landmark, where a full 6-DOF pose trades tilt for position."""
+    roll, pitch = float(getattr(meta, "roll_rad", 0.0)), float(getattr(meta, "pitch_rad", 0.0))
+    K = intrinsics(meta)
+    rays = np.column_stack([(image[:, 0] - K[0, 2]) / K[0, 0], (image[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(image))])
+    tilt = _body_to_ned(roll, pitch, 0.0) @ _CAMERA_IN_BODY      # camera -> a yaw-free level frame
+    d = rays @ tilt.T
+    if np.any(d[:, 2] <= 1e-6):
+        return None
+    q = d[:, :2] / d[:, 2:3]          # (north, east) offsets per metre of height, yaw-free
+    M, mask = cv2.estimateAffinePartial2D(np.ascontiguousarray(q), np.ascontiguousarray(ned[:, :2]), method=cv2.RANSAC,
+                                          ransacReprojThreshold=LEVEL_RANSAC_M, confidence=0.999)
+    if M is None:
+        return None
+    height = math.hypot(M[0, 0], M[1, 0])
+    yaw = math.atan2(M[1, 0], M[0, 0])
+    north, east = float(M[0, 2]), float(M[1, 2])
+    if not height > 0:
+        return None
+    body = _body_to_ned(roll, pitch, yaw)
+    R = (body @ _CAMERA_IN_BODY).T
+    pose = CameraPoseEstimate(north, east, -height, roll, pitch, yaw)
+    return R, pose, mask.ravel().astype(bool)
