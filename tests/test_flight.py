@@ -9,7 +9,9 @@ import pytest
 
 from protocol.errors import MissionError
 from sim_world.vehicle import LandedState, Vehicle, VehicleConfig
+from protocol.messages import VehiclePose, decode, encode
 from uav_agent.flight import Flight
+from uav_agent.pose_feed import read_pose
 
 
 def free_udp_port() -> int:
@@ -52,6 +54,13 @@ def test_connect_arm_takeoff_goto_land(link):
     assert flight.position_ned() == pytest.approx((north, east, down), abs=0.01)  # both sides convert alike
     assert flight.pose()[3] == pytest.approx(0.5, abs=0.01)
     assert flight.flight_mode == "HOLD"
+    # What the pose feed publishes for observers: the same frame and heading, the vehicle's state and battery.
+    p = read_pose(flight, 1.5, seq=4)
+    assert (p.north_m, p.east_m, p.down_m, p.yaw_rad) == pytest.approx((north, east, down, 0.5), abs=0.01)
+    assert abs(p.roll_rad) < 0.05 and abs(p.pitch_rad) < 0.05
+    assert (p.armed, p.in_air, p.mode, p.time_s, p.seq) == (True, True, "HOLD", 1.5, 4)
+    assert p.battery_pct == pytest.approx(100 * vehicle.battery_remaining, abs=2.0)
+    assert decode(encode(p), VehiclePose) == p
     flight.goto(-30.0, 20.0, 12.0, yaw_rad=None, timeout_s=15)  # keep the heading
     time.sleep(0.1)
     assert vehicle.pose()[3] == pytest.approx(0.5, abs=1e-3)
