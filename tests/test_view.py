@@ -190,6 +190,8 @@ def test_live_view_in_a_real_browser(tmp_path):
                 assert first != second, "robots did not move between two looks a second apart"
                 _wait(page, "window.viewState.end !== null", 120)
                 _wait(page, "document.getElementById('camera').naturalWidth > 0", 10)
+                # The UAV lands after the mission's end: its pose feed shows it coming down.
+                _wait(page, "window.viewState.pose.alt_m !== undefined && window.viewState.pose.alt_m < 1.0", 60)
                 shown = page.evaluate("window.viewState")
                 assert page.inner_text("#end").startswith("completed")
             finally:
@@ -203,7 +205,7 @@ def test_live_view_in_a_real_browser(tmp_path):
         assert {rid: c[:2] for rid, c in shown["robots"].items()} == _final_cells(report)
         assert shown["tick"] == report["ticks"]
         assert shown["end"]["completed"] is report["completed"]
-        # The drone was drawn from its pose feed, moving: many poses, many distinct positions.
+        # The drone was drawn from its pose feed, moving: many poses, several distinct positions.
         assert shown["poses"] >= 10 and len(shown["track"]) >= 3, (shown["poses"], shown["track"])
         assert "live view at http://127.0.0.1:" in (tmp_path / "run.txt").read_text()
     finally:
