@@ -11,7 +11,7 @@ from protocol.errors import MissionError
 from sim_world.vehicle import LandedState, Vehicle, VehicleConfig
 from protocol.messages import VehiclePose, decode, encode
 from uav_agent.flight import Flight
-from uav_agent.pose_feed import read_pose
+from uav_agent.pose_feed import PoseFeed, read_pose
 
 
 def free_udp_port() -> int:
@@ -111,3 +111,34 @@ def test_lost_link_ends_a_wait_early(link):
         flight.goto(400.0, 400.0, 5.0, timeout_s=15)
     assert time.monotonic() - started < 10.0
     assert not math.isnan(flight.position_ned()[0])
+
+
+def test_pose_feed_publishes_while_flying_and_drops_what_fails(link, capfd):
+    vehicle, flight = link
+    flight.connect(timeout_s=10)
+    got, calls = [], [0]
+
+    def publish(pose):
+        calls[0] += 1
+        if calls[0] == 2:
+            raise RuntimeError("session closing")   # this one pose is dropped, the feed goes on
+        got.append(pose)
+
+    feed = PoseFeed(flight, publish, period_s=0.05)
+    try:
+        time.sleep(0.3)
+        assert got == []                             # nothing before the mission says it flies
+        feed.flying(True)
+        flight.takeoff(5.0, timeout_s=15)
+        time.sleep(0.3)
+        feed.flying(False)
+        time.sleep(0.2)
+        n = len(got)
+        time.sleep(0.3)
+        assert len(got) == n >= 5                    # stopped when told
+    finally:
+        feed.close()
+    assert got[0].down_m == pytest.approx(0.0, abs=0.3) and not got[0].in_air   # seen on the ground first
+    assert min(p.down_m for p in got) == pytest.approx(-5.0, abs=0.3) and got[-1].in_air and got[-1].armed
+    assert [p.seq for p in got] == sorted(p.seq for p in got) and len({p.seq for p in got}) == n
+    assert "warning: uav pose feed: pose not published: session closing" in capfd.readouterr().err

@@ -46,14 +46,17 @@ class PoseFeed:
         (self._flying.set if on else self._flying.clear)()
 
     def _loop(self) -> None:
-        while not self._stop.wait(self.period_s):
-            if not self._flying.is_set():
+        # The first pose goes out as soon as the flag is set: observers see the vehicle on the ground
+        # before it climbs.
+        while not self._stop.is_set():
+            if not self._flying.wait(0.1):
                 continue
             try:
                 self.publish(read_pose(self.flight, round(time.monotonic() - self._t0, 3), self.sent + 1))
                 self.sent += 1
             except Exception as exc:  # noqa: BLE001 - a lost pose is only a gap in the view
                 self._warn(f"pose not published: {exc}")
+            self._stop.wait(self.period_s)
 
     def close(self) -> None:
         self._stop.set()
