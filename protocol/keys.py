@@ -58,6 +58,11 @@ class Keys:
         """Every image the UAV takes, downscaled to JPEG, for observers (views, recorders); no one must listen."""
         return f"{self.prefix}/uav/frame"
 
+    @property
+    def uav_pose(self) -> str:
+        """The vehicle's pose (VehiclePose) about 5 times a second while it flies, for observers; no one must listen."""
+        return f"{self.prefix}/uav/pose"
+
     # robots -> UAV
     def ack(self, robot: int) -> str:
         return f"{self.prefix}/robot/{robot}/ack"

@@ -276,11 +276,31 @@ class MissionEvent(Message):
     action: Text = ""
 
 
+@dataclass(frozen=True)
+class VehiclePose(Message):
+    """UAV -> observers: the vehicle's own estimate, a few times a second from take-off until landed.
+
+    Position in CameraFrame's local NED frame (origin at the grid's top-left corner). Nobody must
+    listen; a view or a recorder shows the drone move between images with it.
+    """
+    time_s: NonNegative     # since the mission started
+    north_m: Finite
+    east_m: Finite
+    down_m: Finite
+    yaw_rad: Finite
+    roll_rad: Finite = 0.0
+    pitch_rad: Finite = 0.0
+    armed: bool = False
+    in_air: bool = False
+    mode: Annotated[str, MaxLen(64)] = ""        # the autopilot's mode as MAVSDK names it (HOLD, LAND, ...)
+    battery_pct: Annotated[float, Range(-1.0, 100.0)] = -1.0   # remaining charge; -1 = unknown
+
+
 MESSAGE_TYPES: dict[str, type[Message]] = {
     cls.__name__: cls
     for cls in (Plan, PlanAck, Tick, MoveRequest, MoveResult, MoveBatch, MoveBatchResult, RobotState, Done, CameraRequest,
                 CameraFrame, WorldInfoRequest, WorldInfo, RecordRequest, Record, MissionStatus, MissionEnd,
-                MissionEvent)
+                MissionEvent, VehiclePose)
 }
 
 M = TypeVar("M", bound=Message)

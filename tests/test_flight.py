@@ -9,7 +9,9 @@ import pytest
 
 from protocol.errors import MissionError
 from sim_world.vehicle import LandedState, Vehicle, VehicleConfig
+from protocol.messages import VehiclePose, decode, encode
 from uav_agent.flight import Flight
+from uav_agent.pose_feed import PoseFeed, read_pose
 
 
 def free_udp_port() -> int:
@@ -52,6 +54,13 @@ def test_connect_arm_takeoff_goto_land(link):
     assert flight.position_ned() == pytest.approx((north, east, down), abs=0.01)  # both sides convert alike
     assert flight.pose()[3] == pytest.approx(0.5, abs=0.01)
     assert flight.flight_mode == "HOLD"
+    # What the pose feed publishes for observers: the same frame and heading, the vehicle's state and battery.
+    p = read_pose(flight, 1.5, seq=4)
+    assert (p.north_m, p.east_m, p.down_m, p.yaw_rad) == pytest.approx((north, east, down, 0.5), abs=0.01)
+    assert abs(p.roll_rad) < 0.05 and abs(p.pitch_rad) < 0.05
+    assert (p.armed, p.in_air, p.mode, p.time_s, p.seq) == (True, True, "HOLD", 1.5, 4)
+    assert p.battery_pct == pytest.approx(100 * vehicle.battery_remaining, abs=2.0)
+    assert decode(encode(p), VehiclePose) == p
     flight.goto(-30.0, 20.0, 12.0, yaw_rad=None, timeout_s=15)  # keep the heading
     time.sleep(0.1)
     assert vehicle.pose()[3] == pytest.approx(0.5, abs=1e-3)
@@ -102,3 +111,34 @@ def test_lost_link_ends_a_wait_early(link):
         flight.goto(400.0, 400.0, 5.0, timeout_s=15)
     assert time.monotonic() - started < 10.0
     assert not math.isnan(flight.position_ned()[0])
+
+
+def test_pose_feed_publishes_while_flying_and_drops_what_fails(link, capfd):
+    vehicle, flight = link
+    flight.connect(timeout_s=10)
+    got, calls = [], [0]
+
+    def publish(pose):
+        calls[0] += 1
+        if calls[0] == 2:
+            raise RuntimeError("session closing")   # this one pose is dropped, the feed goes on
+        got.append(pose)
+
+    feed = PoseFeed(flight, publish, period_s=0.05)
+    try:
+        time.sleep(0.3)
+        assert got == []                             # nothing before the mission says it flies
+        feed.flying(True)
+        flight.takeoff(5.0, timeout_s=15)
+        time.sleep(0.3)
+        feed.flying(False)
+        time.sleep(0.2)
+        n = len(got)
+        time.sleep(0.3)
+        assert len(got) == n >= 5                    # stopped when told
+    finally:
+        feed.close()
+    assert got[0].down_m == pytest.approx(0.0, abs=0.3) and not got[0].in_air   # seen on the ground first
+    assert min(p.down_m for p in got) == pytest.approx(-5.0, abs=0.3) and got[-1].in_air and got[-1].armed
+    assert [p.seq for p in got] == sorted(p.seq for p in got) and len({p.seq for p in got}) == n
+    assert "warning: uav pose feed: pose not published: session closing" in capfd.readouterr().err

@@ -59,8 +59,21 @@ def test_mission_mcap_holds_the_mission(recorded):
     assert counts["/fleet/tick"] == report["ticks"]
     assert counts["/fleet/plan"] == report["robots"]
     assert counts["/fleet/done"] == report["robots"]
-    assert counts["/uav/camera"] == counts["/uav/pose"] >= 2   # the survey and the verification at least
+    assert counts["/uav/camera"] >= 2   # the survey and the verification at least
     rec = read_mcap(out / "mission.mcap")
+    # The vehicle's pose feed, not one pose per image: several a second from take-off to landing.
+    times = [ns for ns, _ in rec.poses]
+    flight_s = (times[-1] - times[0]) / 1e9
+    assert counts["/uav/pose"] > counts["/uav/camera"] and counts["/uav/pose"] >= 10, counts
+    assert counts["/uav/pose"] / flight_s >= 3.0, f"{counts['/uav/pose']} poses in {flight_s:.1f} s"
+    # While it climbs and flies to its survey pose it is seen moving (the images alone show two places):
+    # several distinct positions between take-off and perception, from low down up to the survey height.
+    start = next(ns for ns, phase in rec.phases if phase == "takeoff")
+    seen = next(ns for ns, phase in rec.phases if phase == "perceive")
+    flying = [p for ns, p in rec.poses if start <= ns <= seen]
+    assert len({(round(p["east_m"], 2), round(p["north_m"], 2), round(p["alt_m"], 2)) for p in flying}) >= 3, flying
+    top = report["uav"]["max_altitude_m"]
+    assert min(p["alt_m"] for p in flying) < top / 2 and max(p["alt_m"] for p in flying) >= top - 0.5, flying
     # One state per robot per tick, and the last one is where the world says each robot ended.
     assert counts["/fleet/state"] == report["robots"] * report["ticks"]
     assert {str(r): list(c[max(c)]) for r, c in rec.cells.items()} == _final_cells(report)
@@ -177,6 +190,8 @@ def test_live_view_in_a_real_browser(tmp_path):
                 assert first != second, "robots did not move between two looks a second apart"
                 _wait(page, "window.viewState.end !== null", 120)
                 _wait(page, "document.getElementById('camera').naturalWidth > 0", 10)
+                # The UAV lands after the mission's end: its pose feed shows it coming down.
+                _wait(page, "window.viewState.pose.alt_m !== undefined && window.viewState.pose.alt_m < 1.0", 60)
                 shown = page.evaluate("window.viewState")
                 assert page.inner_text("#end").startswith("completed")
             finally:
@@ -190,6 +205,8 @@ def test_live_view_in_a_real_browser(tmp_path):
         assert {rid: c[:2] for rid, c in shown["robots"].items()} == _final_cells(report)
         assert shown["tick"] == report["ticks"]
         assert shown["end"]["completed"] is report["completed"]
+        # The drone was drawn from its pose feed, moving: many poses, several distinct positions.
+        assert shown["poses"] >= 10 and len(shown["track"]) >= 3, (shown["poses"], shown["track"])
         assert "live view at http://127.0.0.1:" in (tmp_path / "run.txt").read_text()
     finally:
         proc.terminate()
@@ -260,3 +277,24 @@ def test_a_view_client_gets_what_changed_since_its_last_update():
     assert [e["kind"] for e in late["events"]] == ["replan"] and "events" not in view.delta(slow)
     view.apply(k.state(1), b"not json")                       # a view shows what it can read
     assert view.delta(slow).get("robots") is None
+
+
+def test_the_view_moves_the_drone_with_its_pose_feed():
+    from protocol.keys import Keys
+    from protocol.messages import CameraFrame, VehiclePose, encode
+    from uav_robots.view_state import FleetView, Seen
+
+    k, view, seen = Keys("f1"), FleetView(), Seen()
+    frame = CameraFrame(width=2, height=2, fx=1.0, fy=1.0, cx=1.0, cy=1.0, north_m=-1.0, east_m=1.0, down_m=-5.0,
+                        yaw_rad=0.0, time_s=0.0, png=b"x", encoding="jpeg")
+    view.apply(k.uav_frame, encode(frame))     # an older UAV: the image's pose is all there is
+    assert view.delta(seen)["pose"] == {"east_m": 1.0, "north_m": -1.0, "alt_m": 5.0}
+    for i in range(3):
+        view.apply(k.uav_pose, encode(VehiclePose(time_s=i * 0.2, north_m=-2.0 - i, east_m=3.0, down_m=-6.0,
+                                                  yaw_rad=0.5, armed=True, in_air=True, mode="HOLD")))
+    d = view.delta(seen)
+    assert d["poses"] == 3 and d["pose"]["north_m"] == -4.0 and d["pose"]["alt_m"] == 6.0
+    view.apply(k.uav_frame, encode(frame))     # once fed, an image no longer moves the drone back
+    assert view.delta(seen)["pose"]["north_m"] == -4.0
+    view.apply(k.uav_pose, b"not a pose")      # a view shows what it can read
+    assert view.delta(seen)["poses"] == 3

@@ -230,6 +230,18 @@ class Flight:
         yaw = math.radians(telemetry.attitude_euler().yaw_deg)
         return (*self.position_ned(), yaw if math.isfinite(yaw) else 0.0)
 
+    def attitude_rad(self) -> tuple[float, float, float]:
+        """(roll, pitch, yaw) in radians; 0 for an angle the autopilot has not sent."""
+        _, telemetry = self._link()
+        e = telemetry.attitude_euler()
+        return tuple(math.radians(v) if math.isfinite(v) else 0.0 for v in (e.roll_deg, e.pitch_deg, e.yaw_deg))
+
+    @property
+    def battery_pct(self) -> float:
+        """Remaining charge 0-100, or -1 when the autopilot has not said."""
+        pct = self._link()[1].battery().remaining_percent
+        return min(100.0, max(0.0, pct)) if math.isfinite(pct) else -1.0
+
     @property
     def armed(self) -> bool:
         return self._link()[1].armed()

@@ -25,6 +25,7 @@ from protocol.transport import Transport, open_session
 
 from .events import EventLog
 from .fleet import FleetLink
+from .pose_feed import PoseFeed
 from .preview import Previewer
 from .progress import Progress
 from .watch import VehicleWatch
@@ -139,6 +140,7 @@ class Mission:
         self.first_result = None
         self.model = None
         self.watch: VehicleWatch | None = None
+        self.pose_feed: PoseFeed | None = None
         self._ended = False
 
     # ------------------------------------------------------------ helpers
@@ -201,6 +203,8 @@ class Mission:
             self.flight = Flight(self.cfg.mavlink_url)
             self.flight.connect(timeout_s=self.cfg.startup_timeout_s)
             self.watch = VehicleWatch(self.flight, self._vehicle_fault)
+            self.pose_feed = PoseFeed(self.flight, lambda p: self.transport.put(self.keys.uav_pose, encode(p)),
+                                      t0=self.events._t0)
             self.clock.lap("connect")
 
             self._fly_and_survey()
@@ -236,6 +240,8 @@ class Mission:
                     pass
             if self.watch is not None:
                 self.watch.close()
+            if self.pose_feed is not None:
+                self.pose_feed.close()
             if self.flight is not None:
                 self.flight.close()
             if hasattr(self, "fleet"):
@@ -262,6 +268,7 @@ class Mission:
         self.frames.clear()
         poses = self._poses = survey_poses(self.info.width, self.info.height, self.info.cell_size_m, first,
                                            min_px_per_cell=self.cfg.min_px_per_cell, border_px=self._border(first))
+        self.pose_feed.flying(True)
         self.flight.takeoff(poses[0][2])
         self.watch.expect_airborne(True)
         self._track_altitude()
@@ -694,6 +701,8 @@ class Mission:
             self._end(False, "mission aborted")
             self.progress.phase("abort", "landing the vehicle")
             self.flight.land(timeout_s=ABORT_LAND_TIMEOUT_S)
+            if self.pose_feed is not None:
+                self.pose_feed.flying(False)
             self.uav["landed"] = True
         except Exception as exc:  # noqa: BLE001 - the link may be the thing that failed
             self.progress.phase("abort", f"could not land: {exc}")
@@ -701,6 +710,7 @@ class Mission:
     def _land(self) -> None:
         self._status("land", message="landing over MAVLink")
         self.flight.land()
+        self.pose_feed.flying(False)
         self.uav["landed"] = True
         self.clock.lap("land")
 

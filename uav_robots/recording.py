@@ -1,9 +1,10 @@
 """mission.mcap: a mission in the MCAP format, JSON-encoded channels with JSON schemas, so Foxglove opens it.
 
 Written from what an observer received on the wire (plans, ticks, robot states, done flags, mission
-status, end and events, the UAV's camera images) plus the world's floor (details.json's `truth` rows,
+status, end and events, the UAV's camera images and pose feed) plus the world's floor (details.json's `truth` rows,
 the map the robots moved on). Camera images use
-Foxglove's `foxglove.CompressedImage`, the camera's pose `foxglove.PoseInFrame`, the floor `foxglove.Grid`;
+Foxglove's `foxglove.CompressedImage`, the vehicle's pose `foxglove.PoseInFrame` (from its VehiclePose feed,
+about 5 Hz; from each image's pose when a UAV sends no feed), the floor `foxglove.Grid`;
 fleet messages keep the protocol's own schemas (protocol/schemas/).
 
 Frame `floor`: x east and y north in metres from the grid's top-left corner, z up; cell (x, y) is centred
@@ -20,7 +21,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from protocol.messages import CameraFrame, decode
+from protocol.messages import CameraFrame, VehiclePose, decode
 from protocol.schemas import SCHEMA_DIR
 
 from .observer import Sample
@@ -78,15 +79,17 @@ def _grid(rows: list[str], cell_m: float, ns: int) -> dict[str, Any]:
             "data": base64.b64encode(free[::-1].tobytes()).decode()}
 
 
+def _pose(north_m: float, east_m: float, down_m: float, yaw_rad: float, ns: int) -> dict[str, Any]:
+    yaw = math.pi / 2 - yaw_rad   # NED yaw (clockwise from north) -> a rotation about z-up, from east
+    return {"timestamp": _stamp(ns), "frame_id": "floor",
+            "pose": {"position": {"x": east_m, "y": north_m, "z": -down_m},
+                     "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2), "w": math.cos(yaw / 2)}}}
+
+
 def _camera(frame: CameraFrame, ns: int) -> tuple[dict[str, Any], dict[str, Any]]:
     image = {"timestamp": _stamp(ns), "frame_id": "camera", "format": frame.encoding,
              "data": base64.b64encode(frame.png).decode()}
-    half = -frame.yaw_rad / 2   # NED yaw (clockwise from north) -> a rotation about z-up, from east
-    yaw = math.pi / 2 + 2 * half
-    pose = {"timestamp": _stamp(ns), "frame_id": "floor",
-            "pose": {"position": {"x": frame.east_m, "y": frame.north_m, "z": -frame.down_m},
-                     "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2), "w": math.cos(yaw / 2)}}}
-    return image, pose
+    return image, _pose(frame.north_m, frame.east_m, frame.down_m, frame.yaw_rad, ns)
 
 
 def write_mcap(path: Path, samples: Iterable[Sample], fleet_prefix: str, rows: list[str] | None,
@@ -122,7 +125,17 @@ def write_mcap(path: Path, samples: Iterable[Sample], fleet_prefix: str, rows: l
 
         if rows:
             put("/map", "foxglove.Grid", t0, _grid(rows, cell_m, t0))
+        # The vehicle's own pose feed when it has one; an older UAV's images say where it was.
+        fed = any(s.key.endswith("/uav/pose") for s in samples)
         for s in samples:
+            if s.key.endswith("/uav/pose"):
+                try:
+                    p = decode(s.payload, VehiclePose)
+                except Exception:  # noqa: BLE001 - a recorder keeps what it can read
+                    continue
+                put("/uav/pose", "foxglove.PoseInFrame", s.time_ns, _pose(p.north_m, p.east_m, p.down_m, p.yaw_rad,
+                                                                           s.time_ns))
+                continue
             if s.key.endswith("/uav/frame"):
                 try:
                     frame = decode(s.payload, CameraFrame)
@@ -130,7 +143,8 @@ def write_mcap(path: Path, samples: Iterable[Sample], fleet_prefix: str, rows: l
                     continue
                 image, pose = _camera(frame, s.time_ns)
                 put("/uav/camera", "foxglove.CompressedImage", s.time_ns, image)
-                put("/uav/pose", "foxglove.PoseInFrame", s.time_ns, pose)
+                if not fed:
+                    put("/uav/pose", "foxglove.PoseInFrame", s.time_ns, pose)
                 continue
             topic = _topic(fleet_prefix, s.key)
             if topic is not None:

@@ -137,8 +137,15 @@ def timeline(rec: Recording) -> dict:
     import bisect
 
     times = [ns for ns, _ in sorted(rec.tick_times)]
-    poses = dict(rec.poses)
-    images = [{"tick": bisect.bisect_right(times, ns), "pose": poses.get(ns, {}),
+    poses = sorted(rec.poses, key=lambda p: p[0])
+    pose_times = [ns for ns, _ in poses]
+
+    def pose_at(ns: int) -> dict:
+        """The vehicle's last pose at or before `ns` (its feed runs at about 5 Hz, images come when taken)."""
+        i = bisect.bisect_right(pose_times, ns)
+        return poses[i - 1][1] if i else {}
+
+    images = [{"tick": bisect.bisect_right(times, ns), "pose": pose_at(ns),
                "data": "data:image/jpeg;base64," + base64.b64encode(jpeg).decode()} for ns, jpeg in rec.images]
     return {"ticks": rec.ticks, "robots": {str(r): [list(c) for c in cells] for r, cells in _positions(rec).items()},
             "goals": {str(r): list(g) for r, g in rec.goals.items()},

@@ -1,4 +1,4 @@
-"""What the live view shows, kept from the fleet's messages: robots, plans, goals, tick, phase, events, image.
+"""What the live view shows, kept from the fleet's messages: robots, plans, goals, tick, phase, events, image, the drone's pose.
 
 `FleetView.apply` takes one wire sample; `FleetView.delta` gives a client what changed since its last
 update (robots that moved, plans that changed, events it has not seen, the image if newer), so a browser
@@ -12,7 +12,7 @@ import threading
 from dataclasses import dataclass, field
 from typing import Any
 
-from protocol.messages import CameraFrame, decode
+from protocol.messages import CameraFrame, VehiclePose, decode
 
 
 @dataclass
@@ -39,6 +39,8 @@ class FleetView:
         self.image: str = ""                           # data: URL of the newest JPEG
         self.image_version = 0
         self.pose: dict[str, float] = {}
+        self.pose_fed = False                          # the UAV sends VehiclePose: images no longer move the drone
+        self.poses = 0                                 # VehiclePose messages applied
         self.end: dict[str, Any] | None = None
 
     def apply(self, key: str, payload: bytes) -> None:
@@ -50,7 +52,16 @@ class FleetView:
                 with self._lock:
                     self.image = f"data:image/{f.encoding};base64," + base64.b64encode(f.png).decode()
                     self.image_version += 1
-                    self.pose = {"east_m": f.east_m, "north_m": f.north_m, "alt_m": -f.down_m}
+                    if not self.pose_fed:
+                        self.pose = {"east_m": f.east_m, "north_m": f.north_m, "alt_m": -f.down_m}
+                return
+            if kind == "pose" and tail[-2] == "uav":
+                p = decode(payload, VehiclePose)
+                with self._lock:
+                    self.pose = {"east_m": p.east_m, "north_m": p.north_m, "alt_m": -p.down_m, "yaw_rad": p.yaw_rad,
+                                 "mode": p.mode, "in_air": p.in_air}
+                    self.pose_fed = True
+                    self.poses += 1
                 return
             body = json.loads(payload)
         except Exception:  # noqa: BLE001 - a view shows what it can read
@@ -78,7 +89,8 @@ class FleetView:
     def delta(self, seen: Seen) -> dict[str, Any]:
         with self._lock:
             out: dict[str, Any] = {"tick": self.tick, "ticks": self.ticks, "phase": self.phase,
-                                   "message": self.message, "end": self.end, "pose": self.pose}
+                                   "message": self.message, "end": self.end, "pose": self.pose,
+                                   "poses": self.poses}
             moved = {str(r): list(v) for r, v in self.robots.items() if seen.robots.get(r) != v}
             if moved:
                 out["robots"] = moved
