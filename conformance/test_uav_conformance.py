@@ -207,7 +207,7 @@ def test_a_silent_robot_is_taken_out_of_the_plan(uav_options, tmp_path):
 
 
 def test_a_done_the_camera_contradicts_is_no_success(uav_options, tmp_path):
-    # It raises Done on its goal the moment it has a plan, and never moves: the floor says otherwise.
+    # It reports every tick as if it followed its plan and raises Done, but never moves: the floor says otherwise.
     liar = uav_options.robots - 1
     run = run_mission(uav_options, Misbehaviour(liar=frozenset({liar})), tmp_path)
     _exited(run, uav_options)

@@ -70,7 +70,7 @@ class Misbehaviour:
     silent_from: dict[int, int] = field(default_factory=dict)  # robot -> first tick it executes but never reports
     late: frozenset[int] = frozenset()         # declare the liveliness token only when the suite says so
     garbage: frozenset[int] = frozenset()      # also put garbage, wrong-version and forged messages on its keys
-    liar: frozenset[int] = frozenset()         # raise Done on its goal as soon as it has a plan, never move or report
+    liar: frozenset[int] = frozenset()         # never move, but report every tick as done to plan and raise Done
     deaf: frozenset[int] = frozenset()         # ignore the first plan it receives (as if it was lost on the way)
 
 
@@ -418,8 +418,6 @@ class FakeFleet(Waiter):
             robot.acked[plan.plan_id] = ok
             self.log.acks.append((time.monotonic(), ack))
         self._put(robot, self.keys.ack(rid), ack)
-        if ok and rid in self.behaviour.liar:
-            self._put(robot, self.keys.done(rid), Done(robot=rid, tick=1, cell=tuple(plan.goal)))
 
     def _target(self, robot: FakeRobot, tick: Tick) -> Cell:
         plan = robot.plan
@@ -443,6 +441,8 @@ class FakeFleet(Waiter):
             raise MissionError(f"the world did not answer the moves of tick {tick.k}")
         result = decode(replies[0], MoveBatchResult)
         self.seen_tick = tick.k
+        for rid in self.behaviour.liar & set(self.robots):
+            self._lie(self.robots[rid], tick)
         for rid, accepted, cell, reason in result.results:
             robot = self.robots[rid]
             with self.cv:
@@ -450,6 +450,20 @@ class FakeFleet(Waiter):
             if tick.k >= self.behaviour.silent_from.get(rid, tick.k + 1):
                 continue  # executes the tick but stops reporting: the UAV's barrier must hold
             self._report(robot, tick, accepted, reason)
+
+    def _lie(self, robot: FakeRobot, tick: Tick) -> None:
+        """States that follow the plan and a Done at its end, from a robot that never asks the world to move:
+        only the UAV's camera can tell."""
+        plan, claimed = robot.plan, self._target(robot, tick)
+        over = plan is not None and plan.plan_id == tick.plan_id and tick.k - robot.base >= len(plan.path) - 1
+        with self.cv:
+            robot.reported.add(tick.k)
+        self._put(robot, self.keys.state(robot.rid), RobotState(
+            robot=robot.rid, tick=tick.k, cell=claimed, status="done" if over else "stepping",
+            plan_id=plan.plan_id if plan else ""))
+        if over and robot.done_for != plan.plan_id:
+            robot.done_for = plan.plan_id
+            self._put(robot, self.keys.done(robot.rid), Done(robot=robot.rid, tick=tick.k, cell=claimed))
 
     def _report(self, robot: FakeRobot, tick: Tick, accepted: bool, reason: str) -> None:
         plan, rid, k = robot.plan, robot.rid, tick.k

@@ -30,7 +30,7 @@ UAV_ARGS = ("--fleet {fleet} --connect {endpoint} --mavlink udpin://127.0.0.1:{m
             "--robots {robots} --tick-timeout {tick_timeout}")
 # A robot that never comes alive or never answers fails after this, not after the default 10 s.
 ROBOT_OPTS = ("--robot-timeout", "5")
-WORKERS = 3            # suites at a time: a suite mostly waits (on robots, flights, timeouts), not computes
+WORKERS = 5            # suites at a time: a suite mostly waits (on robots, flights, timeouts), not computes
 FAILED = re.compile(r"^(?:FAILED|ERROR) conformance/test_\w+\.py::(\w+)", re.M)
 
 

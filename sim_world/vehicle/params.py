@@ -50,8 +50,10 @@ class Params:
             "COM_DL_LOSS_T": _Param(10.0, 0.5, 300.0),
             "COM_FAIL_ACT_T": _Param(5.0, 0.0, 25.0),
             # battery; COM_LOW_BAT_ACT 0 warn, 2 land at critical, 3 return at critical and land at emergency
-            "BAT1_CAPACITY": _Param(5000.0, 1.0, 1e6),
-            "BAT1_N_CELLS": _Param(4.0, 1.0, 14.0),
+            # A 6S 16 Ah pack: about an hour of hover at 15 A, so a long mission at --time-scale 10
+            # (100 s of wall time is 1000 simulated seconds) does not end in a battery failsafe.
+            "BAT1_CAPACITY": _Param(16000.0, 1.0, 1e6),
+            "BAT1_N_CELLS": _Param(6.0, 1.0, 14.0),
             "SIM_BAT_HOVER_A": _Param(15.0, 0.0, 1000.0),
             "BAT_LOW_THR": _Param(0.15, 0.12, 0.5),
             "BAT_CRIT_THR": _Param(0.07, 0.05, 0.5),
