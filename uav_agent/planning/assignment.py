@@ -12,10 +12,6 @@ from itertools import chain, permutations
 from typing import Callable
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import maximum_bipartite_matching
-from scipy.spatial.distance import cdist
 
 from protocol.errors import PlanningError
 
@@ -26,6 +22,7 @@ def euclidean_costs(starts: list[Cell], goals: list[Cell]) -> np.ndarray:
     """The paper's Table 1: straight-line distance from every robot (row) to every goal (column)."""
     s = np.asarray(starts, dtype=float).reshape(-1, 2)
     g = np.asarray(goals, dtype=float).reshape(-1, 2)
+    from scipy.spatial.distance import cdist   # imported on use: scipy's import costs a plan command ~0.5 s
     return cdist(s, g)
 
 
@@ -43,6 +40,8 @@ def _checked(cost) -> np.ndarray:
 
 def _matching(reach: np.ndarray) -> np.ndarray:
     """Maximum bipartite matching robots -> goals over the True entries; -1 = unmatched robot."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import maximum_bipartite_matching
     return maximum_bipartite_matching(csr_matrix(reach.astype(np.int8)), perm_type="column")
 
 
@@ -88,6 +87,7 @@ def assign_optimal(cost) -> list[int]:
     c = _checked(cost)
     if c.shape[0] == 0:
         return []
+    from scipy.optimize import linear_sum_assignment   # on use: `--assign none` never pays its import
     try:
         rows, cols = linear_sum_assignment(c)
     except ValueError:
