@@ -334,6 +334,9 @@ class MemoryTransport(Transport):
         self._mine.clear()
 
 
+SAY_WAITING_AFTER_S = 2.0
+
+
 def open_session(name: str, listen: list[str] | None = None, connect: list[str] | None = None,
                  config_file: str | None = None, stop: threading.Event | None = None,
                  alone: str = "client", wait_s: float = 20.0) -> ZenohTransport:
@@ -354,11 +357,18 @@ def open_session(name: str, listen: list[str] | None = None, connect: list[str] 
 
     def retried(attempt: Callable[[], ZenohTransport], endpoints: list[str], wait: float,
                 otherwise: Callable[[], ZenohTransport] | None = None) -> ZenohTransport:
-        deadline = time.monotonic() + wait
+        start = time.monotonic()
+        deadline = start + wait
+        said = otherwise is not None   # "either" is about to become the router: nothing to wait for
         while True:
             try:
                 return attempt()
             except MissionError:
+                # A long silent wait looks like a hang; a short one is a router still starting.
+                if not said and time.monotonic() - start >= SAY_WAITING_AFTER_S:
+                    print(f"{name}: waiting up to {wait:g} s for a Zenoh router at {', '.join(endpoints)}",
+                          file=sys.stderr, flush=True)
+                    said = True
                 if stop is not None and stop.is_set():
                     raise MissionError(f"{name}: stopped while waiting for a Zenoh router") from None
                 if time.monotonic() >= deadline:

@@ -468,15 +468,19 @@ class World(Lifecycle):
     def _on_camera(self, q: IncomingQuery) -> None:
         if self._decode(q, CameraRequest) is None:
             return
-        # Rendering takes milliseconds to tens of them: off the transport's thread, answered later.
+        # The shutter opens now, as the request arrives: the vehicle may fly on while the
+        # image is rendered (tens to hundreds of milliseconds, off the transport's thread).
         try:
-            self._camera_pool.submit(self._render_reply, q)
+            shot = self.exposure()
+            self._camera_pool.submit(self._render_reply, q, shot)
         except RuntimeError:  # shutting down
             q.finish()
 
-    def _render_reply(self, q: IncomingQuery) -> None:
+    def _render_reply(self, q: IncomingQuery, shot: tuple) -> None:
+        from .camera import capture_frame
+
         try:
-            q.reply(encode(self.capture()))
+            q.reply(encode(capture_frame(*shot)))
         except UavRobotsError as exc:
             self.warn(f"camera: {exc}")
             q.finish()
@@ -498,7 +502,14 @@ class World(Lifecycle):
         return VehicleView(n, e, d - self.cfg.camera_height_m, st.yaw, st.roll, st.pitch, *st.vel)
 
     def capture(self):
-        from .camera import CameraModel, PoseEstimator, Scene, capture_frame
+        from .camera import capture_frame
+
+        return capture_frame(*self.exposure())
+
+    def exposure(self) -> tuple:
+        """What one image shows, fixed at the shutter: the scene, the camera's true view and the
+        clock; capture_frame's arguments."""
+        from .camera import CameraModel, PoseEstimator, Scene
 
         if self.camera_model is None:   # never started (tests of capture alone)
             self.camera_model = CameraModel()
@@ -512,8 +523,7 @@ class World(Lifecycle):
         view = self.camera_view()
         t = self.vehicle.sim_time_s if self.vehicle is not None else time.monotonic() - self._t0
         seed = self._next_seq()
-        return capture_frame(scene, view, self.camera_model, self.cfg.cell_size_m, self.estimator, t,
-                             seq=self._next_seq(), seed=seed)
+        return scene, view, self.camera_model, self.cfg.cell_size_m, self.estimator, t, self._next_seq(), seed
 
     def _on_mission_end(self, key: str, payload: bytes) -> None:
         try:

@@ -27,7 +27,7 @@ from sim_world.camera import (
 )
 from scenarios.maps import place, random_map, resolve_map, warehouse
 from uav_agent.perception import Frame, decode_frame, homography, perceive
-from uav_agent.survey import survey_poses
+from uav_agent.survey import covering, nearer_end_first, path_length, survey_poses
 
 CELL = 1.0
 
@@ -254,6 +254,26 @@ def test_survey_uses_one_frame_for_the_small_warehouse_and_dozens_for_450():
     small = survey_poses(24, 18, 1.0, model)
     assert len(small) == 1 and small[0].north_m == pytest.approx(-9.0) and small[0].east_m == pytest.approx(12.0)
     assert 50 <= len(survey_poses(450, 450, 1.0, model)) <= 120
+
+
+def test_the_survey_flies_its_legs_along_the_longer_side_and_looks_again_only_where_asked():
+    model = CameraModel(width=4000, height=3000)
+    poses = survey_poses(450, 450, 1.0, model)
+    # 3 x 4 footprints: columns (north-south legs of 112 m) fly 1403 m, rows would fly 1623 m.
+    assert len(poses) == 12 and path_length(poses, (0.0, 0.0)) < 1410
+    rng = np.random.default_rng(3)
+    cells = [tuple(int(v) for v in c) for c in rng.integers(0, 450, size=(300, 2))] + [(0, 0), (449, 449), (0, 449)]
+    for cell in cells:
+        (n, e, alt), = covering(poses, [cell], 1.0)
+        H = floor_homography((n, e, -alt, 0.0), model, 1.0)
+        x, y = cell
+        corners = np.array([[[x, y]], [[x + 1, y]], [[x, y + 1]], [[x + 1, y + 1]]], float)
+        px = cv2.perspectiveTransform(corners, H).reshape(-1, 2)
+        assert (px >= 0).all() and (px[:, 0] < model.width).all() and (px[:, 1] < model.height).all(), (cell, n, e)
+    some = covering(poses, [(10, 10), (440, 440)], 1.0)
+    assert len(some) == 2 and [p in poses for p in some] == [True, True]
+    assert nearer_end_first(some, some[-1][:2]) == some[::-1] and nearer_end_first(some, some[0][:2]) == some
+    assert covering(poses, [], 1.0) == []
 
 
 @pytest.mark.parametrize("kwargs,match", [

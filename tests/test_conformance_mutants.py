@@ -30,6 +30,9 @@ UAV_ARGS = ("--fleet {fleet} --connect {endpoint} --mavlink udpin://127.0.0.1:{m
             "--robots {robots} --tick-timeout {tick_timeout}")
 # A robot that never comes alive or never answers fails after this, not after the default 10 s.
 ROBOT_OPTS = ("--robot-timeout", "5")
+# A mutant UAV that never ends its mission is killed after this, not after the default 90 s
+# (a clean mission of the suite takes about 10 s).
+UAV_OPTS = ("--uav-timeout", "45")
 WORKERS = 5            # suites at a time: a suite mostly waits (on robots, flights, timeouts), not computes
 FAILED = re.compile(r"^(?:FAILED|ERROR) conformance/test_\w+\.py::(\w+)", re.M)
 
@@ -46,7 +49,7 @@ class Verdict:
 def _command(side: str, rule: str) -> tuple[str, ...]:
     impl = f"{PY} -m conformance.mutants {side} --break {rule}"
     if side == "uav":
-        return ("--uav-cmd", f"{impl} {UAV_ARGS}")
+        return ("--uav-cmd", f"{impl} {UAV_ARGS}", *UAV_OPTS)
     return ("--robot-cmd", f"{impl} --id {{id}} {ROBOT_ARGS}", "--robot-pool-cmd", f"{impl} --ids {{ids}} {ROBOT_ARGS}",
             *ROBOT_OPTS)
 
@@ -55,7 +58,8 @@ def _suite(side: str, rule: str, tests: tuple[str, ...]) -> Verdict:
     argv = [sys.executable, "-m", "pytest", f"conformance/{SUITES[side]}", "-q", "-p", "no:cacheprovider", "-rfE",
             *_command(side, rule)]
     if tests:
-        argv += ["-k", " or ".join(tests)]
+        # Only the rule's own tests run, so their first failure already catches the mutant.
+        argv += ["-k", " or ".join(tests), "--maxfail=1"]
     t = time.monotonic()
     run = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=400)
     return Verdict(rule, run.returncode, frozenset(FAILED.findall(run.stdout)), time.monotonic() - t,

@@ -24,3 +24,36 @@ def test_garbage_and_forgery_are_refused_state_kept():
     tok.close()
     assert link.lost == {1} and "lost" in link.lost_among([1])
     link.close()
+
+
+def test_a_fleet_still_coming_up_extends_the_start_up_wait_a_stopped_one_does_not():
+    import threading
+    import time
+
+    import pytest
+
+    from protocol.errors import MissionError
+
+    bus = MemoryBus()
+    keys = Keys("t")
+    link = FleetLink(MemoryTransport(bus), keys)
+    robot = MemoryTransport(bus)
+    tokens = []
+
+    def come_up():   # one robot every 0.3 s: each resets a 0.5 s wait
+        for rid in range(5):
+            time.sleep(0.3)
+            tokens.append(robot.announce(keys.alive_robot(rid)))
+
+    t = threading.Thread(target=come_up)
+    t.start()
+    start = time.monotonic()
+    link.wait_until(lambda: len(link.alive) >= 5, 0.5, lambda: "never", progress=lambda: len(link.alive), longest=10)
+    assert len(link.alive) == 5 and time.monotonic() - start >= 1.4   # well past one 0.5 s wait
+    t.join()
+    with pytest.raises(MissionError, match="only 5 of 6"):
+        link.wait_until(lambda: len(link.alive) >= 6, 0.5, lambda: f"only {len(link.alive)} of 6",
+                        progress=lambda: len(link.alive), longest=10)
+    for tok in tokens:
+        tok.close()
+    link.close()

@@ -103,13 +103,22 @@ class FleetLink:
             self.cv.notify_all()
 
     def wait_until(self, ready: Callable[[], bool], timeout: float, failure: Callable[[], str],
-                   abort: Callable[[], str | None] | None = None) -> None:
-        """Block until `ready()` (evaluated under the lock), or raise MissionError with `failure()`."""
-        deadline = time.monotonic() + timeout
+                   abort: Callable[[], str | None] | None = None, progress: Callable[[], object] | None = None,
+                   longest: float | None = None) -> None:
+        """Block until `ready()` (evaluated under the lock), or raise MissionError with `failure()`.
+
+        With `progress`, `timeout` counts from its last change (a slow machine still bringing up
+        robots is not a dead one), up to `longest` in all."""
+        start = time.monotonic()
+        deadline = start + timeout
+        last = progress() if progress is not None else None
         with self.cv:
             while not ready():
                 if abort is not None and (why := abort()):
                     raise MissionError(why)
+                if progress is not None and (now := progress()) != last:
+                    last = now
+                    deadline = min(time.monotonic() + timeout, start + (longest or timeout))
                 left = deadline - time.monotonic()
                 if left <= 0:
                     raise MissionError(failure())

@@ -162,6 +162,14 @@ class Flight:
         self._wait(up, deadline,
                    lambda: f"vehicle did not reach {alt_m:g} m within {timeout_s:g} s (at {self._altitude():.1f} m)")
 
+    def set_speed(self, m_s: float) -> None:
+        """Ask for a horizontal speed for the gotos that follow (MAV_CMD_DO_CHANGE_SPEED); the
+        autopilot caps it at its MPC_XY_VEL_MAX."""
+        if not (math.isfinite(m_s) and m_s > 0):
+            raise MissionError(f"speed must be a positive number of m/s, got {m_s}")
+        action, _ = self._link()
+        self._act(f"set speed {m_s:g} m/s", lambda: action.set_current_speed(float(m_s)))
+
     def goto(self, north_m: float, east_m: float, alt_m: float, yaw_rad: float | None = 0.0,
              timeout_s: float = 120.0, tolerance_m: float = 0.5) -> tuple[float, float, float]:
         """Fly to (north, east) at `alt_m` above home, facing `yaw_rad` (None keeps the heading);

@@ -31,12 +31,15 @@ from .progress import Progress
 from .watch import VehicleWatch
 
 QUERY_TIMEOUT_S = 10.0
+CAMERA_TIMEOUT_S = 30.0    # a 12 MP image rendered on a loaded machine, or sent over a slow link
 ABORT_LAND_TIMEOUT_S = 60.0
 RELOOK_ROUNDS = 2          # closer looks at unreadable markers, unsure cells, robots that may hide a goal
 RELOOK_MAX_CELLS = 200
 RELOOK_MIN_ALT_M = 3.0
+STARTUP_LONGEST = 4         # robots still coming up extend the start-up wait, to this many times it
 PLAN_RESEND_S = 2.0        # a plan not acknowledged within this is put again
 SURVEY_BORDER = 0.06       # of the image's short side, with a lens: its undistorted corners are empty
+SURVEY_SPEED_M_S = 20.0    # asked of the autopilot for the flight between hover poses (capped by MPC_XY_VEL_MAX)
 MONITOR_FIRST = 25         # auto monitoring: the first image after this many ticks ...
 MONITOR_SHARE = 0.2        # ... then whenever the images so far cost at most this share of execution time
 
@@ -79,10 +82,11 @@ def _transport(cfg: MissionConfig) -> Transport:
     return open_session("uav", cfg.listen, cfg.connect, cfg.zenoh_config, alone="either")
 
 
-def _query(transport: Transport, key: str, request: Any, reply_type: type, what: str) -> Any:
-    replies = transport.request(key, encode(request), QUERY_TIMEOUT_S)
+def _query(transport: Transport, key: str, request: Any, reply_type: type, what: str,
+           timeout_s: float = QUERY_TIMEOUT_S) -> Any:
+    replies = transport.request(key, encode(request), timeout_s)
     if not replies:
-        raise MissionError(f"no answer from the world's {what} within {QUERY_TIMEOUT_S:g} s")
+        raise MissionError(f"no answer from the world's {what} within {timeout_s:g} s")
     try:
         return decode(replies[0], reply_type)
     except ProtocolError as exc:
@@ -158,10 +162,52 @@ class Mission:
         self.uav["max_altitude_m"] = round(max(self.uav["max_altitude_m"], -down), 2)
 
     def _capture(self) -> CameraFrame:
-        frame = _query(self.transport, self.keys.camera, CameraRequest(seq=self._next()), CameraFrame, "camera")
+        frame = _query(self.transport, self.keys.camera, CameraRequest(seq=self._next()), CameraFrame, "camera",
+                       CAMERA_TIMEOUT_S)
+        self._took(frame)
+        return frame
+
+    def _took(self, frame: CameraFrame) -> None:
         self.frames.append(frame)
         self.previewer.submit(frame)
-        return frame
+
+    def _fusion(self, known: set[int] | None = None):
+        from .perception import Fusion
+
+        return Fusion(self.info.width, self.info.height, self.info.cell_size_m, known_ids=known,
+                      landmarks=self.landmarks)
+
+    def _shots(self, fusion) -> "Shots":
+        """Images asked for on the move, perceived into `fusion` as they arrive."""
+        from .shots import Shots
+
+        return Shots(lambda: self.transport.request_start(self.keys.camera, encode(CameraRequest(seq=self._next())),
+                                                          CAMERA_TIMEOUT_S),
+                     self._took, fusion.add, CAMERA_TIMEOUT_S,
+                     fence=lambda: self.transport.request(self.keys.world_info, encode(WorldInfoRequest(seq=self._next())),
+                                                          QUERY_TIMEOUT_S))
+
+    def _tour(self, poses, fusion) -> None:
+        """Fly over `poses` (north, east, alt), taking an image at each without waiting for it;
+        every image is perceived into `fusion` by the time this returns."""
+        shots = self._shots(fusion)
+        try:
+            for north, east, alt in poses:
+                self.flight.goto(north, east, alt)
+                shots.shoot((north, east, alt))
+            shots.drain()
+        finally:
+            shots.close()
+        self._retake(shots, fusion)
+
+    def _retake(self, shots, fusion) -> None:
+        """Take again, holding still until each arrives, the images the vehicle flew away from."""
+        for north, east, alt in shots.missed:
+            self.flight.goto(north, east, alt)
+            fusion.add(self._capture())
+        if shots.missed:
+            self.uav["retaken_images"] = self.uav.get("retaken_images", 0) + len(shots.missed)
+            self.flight.goto(*self._hover_ned)
 
     def _event(self, kind: str, robots, what: str, action: str = "") -> None:
         e = self.events.add(self.tick, kind, list(robots), what, action)
@@ -272,34 +318,51 @@ class Mission:
         self.flight.takeoff(poses[0][2])
         self.watch.expect_airborne(True)
         self._track_altitude()
+        try:
+            self.flight.set_speed(SURVEY_SPEED_M_S)
+        except MissionError as exc:   # an autopilot without DO_CHANGE_SPEED flies its cruise speed
+            self.progress.phase("survey", f"keeping the vehicle's cruise speed: {exc}")
         self.clock.lap("takeoff")
-        for i, (north, east, alt) in enumerate(poses):
-            self._status("survey", message=f"image {i + 1}/{len(poses)} from {alt:.1f} m")
-            self.flight.goto(north, east, alt)
-            self._track_altitude()
-            frame = self._capture()
-            if i == 0:
+        # The images are perceived while the vehicle flies on: the first one alone, to measure the
+        # camera's blur before the rest of the survey is committed to this height.
+        self.survey_fusion = self._fusion()
+        shots = self._shots(self.survey_fusion)
+        try:
+            for i, (north, east, alt) in enumerate(poses):
+                self._status("survey", message=f"image {i + 1}/{len(poses)} from {alt:.1f} m")
+                self.flight.goto(north, east, alt)
+                self._track_altitude()
+                if i > 0:
+                    shots.shoot((north, east, alt))
+                    continue
+                frame = self._capture()
+                self.survey_fusion.add(frame)
                 lower = self._sharp_enough(frame, first)
                 if lower is not None:
                     poses = self._poses = lower
                     break
-        else:
-            lower = None
-        if lower is not None:   # the first image was too blurred for the planned height: the lower survey
-            for i, (north, east, alt) in enumerate(poses):
-                self._status("survey", message=f"image {i + 1}/{len(poses)} from {alt:.1f} m (lower: blurred camera)")
-                self.flight.goto(north, east, alt)
-                self._track_altitude()
-                self._capture()
-        # Hover over the floor's centre while the robots move: the leader keeps them in view.
-        c = self.info.cell_size_m
-        centre_n, centre_e = -self.info.height * c / 2, self.info.width * c / 2
-        hover_alt = self._survey_alt = max(p[2] for p in poses)
-        self._hover_ned = (centre_n, centre_e, hover_alt) if len(poses) > 1 else poses[-1]
-        self.flight.goto(*self._hover_ned)
-        n, e, d = self.flight.position_ned()
-        self.uav["hover"] = [round(e / c, 2), round(-n / c, 2), round(-d, 2)]
-        self._track_altitude()
+            else:
+                lower = None
+            if lower is not None:   # the first image was too blurred for the planned height: the lower survey
+                for i, (north, east, alt) in enumerate(poses):
+                    self._status("survey", message=f"image {i + 1}/{len(poses)} from {alt:.1f} m "
+                                                    "(lower: blurred camera)")
+                    self.flight.goto(north, east, alt)
+                    self._track_altitude()
+                    shots.shoot((north, east, alt))
+            # Hover over the floor's centre while the robots move: the leader keeps them in view.
+            c = self.info.cell_size_m
+            centre_n, centre_e = -self.info.height * c / 2, self.info.width * c / 2
+            hover_alt = self._survey_alt = max(p[2] for p in poses)
+            self._hover_ned = (centre_n, centre_e, hover_alt) if len(poses) > 1 else poses[-1]
+            self.flight.goto(*self._hover_ned)
+            n, e, d = self.flight.position_ned()
+            self.uav["hover"] = [round(e / c, 2), round(-n / c, 2), round(-d, 2)]
+            self._track_altitude()
+            shots.drain()
+        finally:
+            shots.close()
+        self._retake(shots, self.survey_fusion)
         self.clock.lap("survey")
 
     def _sharp_enough(self, frame: CameraFrame, camera: CameraFrame):
@@ -339,34 +402,32 @@ class Mission:
         # other id is a misread, not a robot.
         expected = self.cfg.robots
         if expected is not None:
-            self.fleet.wait_until(lambda: len(self.fleet.alive) >= expected, self.cfg.startup_timeout_s,
+            wait = self.cfg.startup_timeout_s
+            self.fleet.wait_until(lambda: len(self.fleet.alive) >= expected, wait,
                                   lambda: f"only {len(self.fleet.alive)} of {expected} robots came alive "
-                                          f"within {self.cfg.startup_timeout_s:g} s")
+                                          f"(none more for {wait:g} s)",
+                                  progress=lambda: len(self.fleet.alive), longest=STARTUP_LONGEST * wait)
         with self.fleet.cv:
             known = set(self.fleet.alive) or None
         from .perception.verdict import raise_if_missing
 
         self._status("perceive", message=f"{len(self.frames)} image(s) through OpenCV")
-        model = self._see(self.frames, known)
+        self.survey_fusion.known_ids = known
+        model = self._see(self.survey_fusion)
         self.perception_warnings = model.warnings
         self.perception_frames = model.frames
         raise_if_missing(model, known, expected)
         self.clock.lap("perceive")
         return model
 
-    def _perceive_frames(self, frames: list[CameraFrame], known: set[int] | None):
-        from .perception import perceive
-
-        return perceive(frames, self.info.width, self.info.height, self.info.cell_size_m, known_ids=known,
-                        landmarks=self.landmarks)
-
-    def _see(self, frames: list[CameraFrame], known: set[int] | None, for_map: bool = True):
+    def _see(self, fusion, for_map: bool = True):
         """Perceive `frames`; what they leave in doubt gets a closer look from lower down: markers
         whose id did not decode, unsure cells (before they are taken for obstacles), and, when
         fewer goals than robots were seen, the robots (one may stand on a goal and hide most of it)."""
         from .perception.relook import doubts, hover_points
 
-        model = self._perceive_frames(frames, known)
+        known = fusion.known_ids
+        model = fusion.model()
         for attempt in range(1, RELOOK_ROUNDS + 1):
             targets = doubts(model, known, for_map)
             if not targets:
@@ -383,23 +444,22 @@ class Mission:
                                             f"markers, {len(model.unsure)} unsure, {len(model.robots)} robots / "
                                             f"{len(model.goals)} goals): a closer look from {len(points)} hover(s) at "
                                             f"{alt:.1f} m (round {attempt})")
-            for north, east in points:
-                self.flight.goto(north, east, alt)
-                frame = self._capture()
-                if frames is not self.frames:
-                    frames.append(frame)
-            model = self._perceive_frames(frames, known)
+            self._tour([(north, east, alt) for north, east in points], fusion)
+            model = fusion.model()
             self.flight.goto(*self._hover_ned)
         return model
 
-    def _look(self) -> dict[int, Cell]:
-        """A fresh look at the whole floor from the survey poses: robot id -> the cell the camera sees it on."""
-        frames = []
-        for north, east, alt in self._poses:
-            self.flight.goto(north, east, alt)
-            frames.append(self._capture())
+    def _look(self, cells: list[Cell] | None = None) -> dict[int, Cell]:
+        """A fresh look from the survey poses, at the whole floor or only at the poses that
+        see `cells`: robot id -> the cell the camera sees it on."""
+        from .survey import covering, nearer_end_first
+
+        poses = self._poses if cells is None else covering(self._poses, cells, self.info.cell_size_m)
+        here = self.flight.position_ned()
+        fusion = self._fusion(set(self.ids))
+        self._tour(nearer_end_first(poses, (here[0], here[1])), fusion)
         self.flight.goto(*self._hover_ned)
-        model = self._see(frames, set(self.ids), for_map=False)
+        model = self._see(fusion, for_map=False)
         return {r: tuple(c) for r, c in model.robots.items()}
 
     def _plan(self, model):
@@ -652,8 +712,9 @@ class Mission:
                 self.fleet.cv.wait(0.1)
             claimed = {r for r in self.ids if r in self.fleet.done}
         self._status("verify", message=f"a fresh look at {len(plan.ids)} robots' goals")
-        seen = self.seen_at_end = self._look()
         goals = {r: self.goal_of.get(r) for r in self.ids}
+        # Only the goals matter: a robot anywhere else is not on its goal, seen or not.
+        seen = self.seen_at_end = self._look([tuple(g) for g in goals.values() if g is not None])
         for r in self.ids:
             g = goals[r]
             self.verified[r] = g is not None and seen.get(r) == tuple(g)

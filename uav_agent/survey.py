@@ -81,10 +81,36 @@ def survey_poses(width: int, height: int, cell_size_m: float, model: CameraLike,
     cy = getattr(model, "cy", (model.height - 1) / 2)
     de = ((model.width - 1) / 2 - cx) / model.fx * alt
     dn = -((model.height - 1) / 2 - cy) / model.fy * alt
-    poses: list[SurveyPose] = []
-    for row, south in enumerate(souths):
-        for east in (easts if row % 2 == 0 else easts[::-1]):
-            poses.append(SurveyPose(north_m=-south - dn, east_m=east - de, alt_m=alt))
+    rows = [SurveyPose(-south - dn, east - de, alt)
+            for row, south in enumerate(souths) for east in (easts if row % 2 == 0 else easts[::-1])]
+    columns = [SurveyPose(-south - dn, east - de, alt)
+               for col, east in enumerate(easts) for south in (souths if col % 2 == 0 else souths[::-1])]
+    # Along the floor's longer side of footprints: fewer, longer legs (the vehicle starts at home, 0/0).
+    return min(rows, columns, key=lambda poses: path_length(poses, (0.0, 0.0)))
+
+
+def path_length(poses, start: tuple[float, float]) -> float:
+    """Horizontal metres flown from `start` through `poses` in order."""
+    points = [start, *((p[0], p[1]) for p in poses)]
+    return sum(math.dist(a, b) for a, b in zip(points, points[1:]))
+
+
+def covering(poses: list[SurveyPose], cells, cell_size_m: float) -> list[SurveyPose]:
+    """The survey poses, in survey order, whose images hold `cells` (x, y): each cell's nearest
+    pose. Footprints of one survey overlap by a cell, so a cell lies wholly inside its nearest one."""
+    if not poses:
+        return []
+    wanted = set()
+    for x, y in cells:
+        north, east = -(y + 0.5) * cell_size_m, (x + 0.5) * cell_size_m
+        wanted.add(min(range(len(poses)), key=lambda i: math.hypot(poses[i][0] - north, poses[i][1] - east)))
+    return [p for i, p in enumerate(poses) if i in wanted]
+
+
+def nearer_end_first(poses: list[SurveyPose], here: tuple[float, float]) -> list[SurveyPose]:
+    """`poses` in their order or reversed, whichever starts nearer `here` (north, east)."""
+    if len(poses) > 1 and math.dist(here, poses[-1][:2]) < math.dist(here, poses[0][:2]):
+        return poses[::-1]
     return poses
 
 

@@ -28,7 +28,10 @@ class VehicleConfig:
     home_lat: float = 47.397742  # PX4 SITL's default home (Zurich)
     home_lon: float = 8.545594
     home_alt_m: float = 488.0  # AMSL
-    max_speed_m_s: float = 12.0
+    # A survey airframe: PX4's MPC_XY_VEL_MAX at its upper bound; it flies at the cruise speed
+    # until DO_CHANGE_SPEED (MAVSDK's set_current_speed) asks for more.
+    max_speed_m_s: float = 20.0
+    cruise_speed_m_s: float = 12.0
     max_climb_m_s: float = 3.0
     time_scale: float = 1.0
     takeoff_alt_m: float = 2.5  # MIS_TAKEOFF_ALT: PX4's default, the lowest takeoff altitude
@@ -45,7 +48,7 @@ class VehicleConfig:
         check_home(self.home_lat, self.home_lon)
         if not 1 <= self.system_id <= 255:
             raise MissionError(f"vehicle system id {self.system_id} is outside 1..255")
-        for name in ("max_speed_m_s", "max_climb_m_s", "time_scale", "takeoff_alt_m", "max_alt_m",
+        for name in ("max_speed_m_s", "cruise_speed_m_s", "max_climb_m_s", "time_scale", "takeoff_alt_m", "max_alt_m",
                      "land_speed_m_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):

@@ -50,7 +50,7 @@ class Vehicle:
                                 on_current=lambda seq: self._link.send(self._telemetry.mission_current()))
         self._missions = MissionService(self._lock, self._journal, self._link, self._mission)
         self._autopilot = Autopilot(self._lock, self._journal, self._dynamics, self._params, self._offboard,
-                                    self._battery, self._datalink, self._mission, cruise_speed_m_s=cfg.max_speed_m_s)
+                                    self._battery, self._datalink, self._mission, cruise_speed_m_s=min(cfg.cruise_speed_m_s, cfg.max_speed_m_s))
         self._telemetry = Telemetry(cfg, self._lock, self._journal, self._link, self._dynamics, self._autopilot,
                                     self._battery, self._mission)
         self._commands = Commands(cfg, self._link, self._journal, self._autopilot, self._telemetry, self._params,

@@ -8,8 +8,8 @@ landmarks), `occupancy` (floor or shelf, adaptive), `markers` (robots),
 `goals` (green pads), `fusion` (all views into one model, by confidence).
 """
 from .frames import Frame, decode_frame
-from .fusion import FrameReport, WorldModel, perceive
+from .fusion import FrameReport, Fusion, WorldModel, perceive
 from .registration import Landmarks, Registration, homography, register
 
-__all__ = ["Frame", "FrameReport", "Landmarks", "Registration", "WorldModel", "decode_frame", "homography",
+__all__ = ["Frame", "FrameReport", "Fusion", "Landmarks", "Registration", "WorldModel", "decode_frame", "homography",
            "perceive", "register"]

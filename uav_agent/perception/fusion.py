@@ -89,6 +89,97 @@ def _within(reg: Registration, cells) -> np.ndarray:
     return d <= reg.trust_radius
 
 
+class Fusion:
+    """A world model built one frame at a time: `add` each frame as it arrives (the survey
+    flies on meanwhile), `model()` whenever the mission needs the current picture."""
+
+    def __init__(self, width: int, height: int, cell_size_m: float, known_ids: Collection[int] | None = None,
+                 landmarks: Landmarks | None = None) -> None:
+        if width < 1 or height < 1:
+            raise MissionError(f"perception: grid size {width}x{height} is not positive")
+        if not cell_size_m > 0:
+            raise MissionError(f"perception: cell size must be positive, got {cell_size_m}")
+        self.grid = (width, height)
+        self.cell_size_m, self.known_ids, self.landmarks = cell_size_m, known_ids, landmarks
+        self.vote = np.zeros((height, width))       # sum of weight * (+1 floor, -1 shelf)
+        self.total = np.zeros((height, width))      # sum of weight
+        self.seen = np.zeros((height, width), bool)
+        self.marker_vote = np.zeros((height, width))   # weight of the views that see a marker's contrast there
+        self.shelf_cells = landmarks.cells(cell_size_m, width, height) if landmarks is not None else set()
+        self.sightings: list[Sighting] = []
+        self.goals: set[Cell] = set()
+        self.warnings: list[str] = []
+        self.reports: list[FrameReport] = []
+        self.best = 0.0                             # the heaviest view's weight
+
+    def add(self, item: Frame | CameraFrame) -> View:
+        landmarks, grid = self.landmarks, self.grid
+        view = prepare(item, landmarks, self.cell_size_m)
+        reg = view.reg
+        self.reports.append(FrameReport(int(view.frame.meta.seq), reg.source, reg.landmarks, reg.reprojection_px,
+                                        None if reg.pose is None else tuple(round(v, 4) for v in (
+                                            reg.pose.north_m, reg.pose.east_m, reg.pose.down_m, reg.pose.roll_rad,
+                                            reg.pose.pitch_rad, reg.pose.yaw_rad)), round(view.sharpness, 3)))
+        cells = cells_in(view, grid)
+        if cells is None:
+            return view
+        sl = (slice(cells.y0, cells.y0 + cells.seen.shape[0]), slice(cells.x0, cells.x0 + cells.seen.shape[1]))
+        self.best = max(self.best, view.sharpness)   # what a registered view of this quality would weigh
+        trusted = cells.seen & _within(reg, cells)
+        w = _weight(view, landmarks) * cells.centre_weight * (0.25 + 0.75 * cells.confidence) * cells.seen
+        w = np.where(trusted, w, ESTIMATE_WEIGHT * w)
+        self.vote[sl] += w * np.where(cells.free, 1.0, -1.0)
+        self.total[sl] += w
+        self.seen[sl] |= cells.seen
+        if landmarks is not None and not reg.registered:
+            return view   # placed by the estimate alone: its cells vote (weakly), its markers and goals would lie
+        inside = {(int(x) + cells.x0, int(y) + cells.y0) for y, x in zip(*np.nonzero(trusted))}
+        frame_goals = (goals_in(view, grid) - self.shelf_cells) & inside
+        self.goals |= frame_goals
+        self.marker_vote[sl] += w * (cells.marker_like & trusted)
+        ys, xs = np.nonzero(cells.marker_like & trusted)
+        candidates = {(int(x) + cells.x0, int(y) + cells.y0) for x, y in zip(xs, ys)} - frame_goals - self.shelf_cells
+        self.sightings += [s for s in read_markers(view, candidates, grid, self.warnings)
+                           if s.cell not in self.shelf_cells and s.cell in inside]
+        return view
+
+    def model(self) -> WorldModel:
+        """The world model of every frame added so far."""
+        vote, total, seen, landmarks = self.vote, self.total, self.seen.copy(), self.landmarks
+        shelf_cells, goals, reports = self.shelf_cells, set(self.goals), self.reports
+        width, height = self.grid
+        warnings = list(self.warnings)
+        free = (vote > 0) & seen
+        agreement = np.abs(vote) / np.maximum(total, 1e-12)
+        # Weak against this mission's best view: blur or noise that is the same everywhere
+        # leaves every cell as sure as the images allow.
+        unsure_mask = seen & ((agreement < UNSURE_AGREEMENT) | (total < UNSURE_WEIGHT * self.best))
+        for x, y in shelf_cells:
+            free[y, x], unsure_mask[y, x] = False, False
+        robots = settle(self.sightings, self.known_ids, warnings)
+        robot_cells = set(robots.values())
+        # A marker most views agree on: one misregistered view's contrast at a shelf edge is not one.
+        marker_like = self.marker_vote > 0.5 * total
+        marked = {(int(x), int(y)) for y, x in zip(*np.nonzero(marker_like))} - shelf_cells
+        unidentified = sorted(marked - robot_cells - goals)
+        for x, y in list(robot_cells) + list(goals) + unidentified:
+            free[y, x] = seen[y, x] = True   # floor under a robot or a goal marker
+            unsure_mask[y, x] = False
+        if unidentified:
+            warnings.append(f"{len(unidentified)} marker(s) seen but not read, at {unidentified[:5]}")
+        unsure = sorted((int(x), int(y)) for y, x in zip(*np.nonzero(unsure_mask)))
+        if unsure:
+            free[unsure_mask] = False      # an obstacle until a closer look says otherwise
+            warnings.append(f"{len(unsure)} cell(s) unsure (views disagree or only weak views), at {unsure[:5]}")
+        estimated = [r.seq for r in reports if r.source != "landmarks"]
+        if landmarks is not None and estimated:
+            warnings.append(f"{len(estimated)} frame(s) placed by the pose estimate alone (too few landmarks): "
+                            f"seq {estimated[:5]}")
+        return WorldModel(free=free, robots=robots, goals=sorted(goals), seen=seen,
+                          unseen=int(width * height - seen.sum()), unidentified=unidentified, warnings=warnings,
+                          unsure=unsure, frames=list(reports))
+
+
 def perceive(frames: list[Frame | CameraFrame], width: int, height: int, cell_size_m: float,
              known_ids: Collection[int] | None = None, landmarks: Landmarks | None = None) -> WorldModel:
     """Merge overhead frames into a world model of a width x height grid.
@@ -97,75 +188,7 @@ def perceive(frames: list[Frame | CameraFrame], width: int, height: int, cell_si
     network) turns a marker read as any other id into a warning, not a robot.
     `landmarks` (from WorldInfo) registers each image from the image itself;
     without them the frames' pose estimates are taken as they are."""
-    if width < 1 or height < 1:
-        raise MissionError(f"perception: grid size {width}x{height} is not positive")
-    if not cell_size_m > 0:
-        raise MissionError(f"perception: cell size must be positive, got {cell_size_m}")
-    grid = (width, height)
-    vote = np.zeros((height, width))       # sum of weight * (+1 floor, -1 shelf)
-    total = np.zeros((height, width))      # sum of weight
-    seen = np.zeros((height, width), bool)
-    marker_vote = np.zeros((height, width))   # weight of the views that see a marker's contrast there
-    shelf_cells = landmarks.cells(cell_size_m, width, height) if landmarks is not None else set()
-    sightings: list[Sighting] = []
-    goals: set[Cell] = set()
-    warnings: list[str] = []
-    reports: list[FrameReport] = []
-    best = 0.0                             # the heaviest view's weight
+    fusion = Fusion(width, height, cell_size_m, known_ids, landmarks)
     for item in frames:
-        view = prepare(item, landmarks, cell_size_m)
-        reg = view.reg
-        reports.append(FrameReport(int(view.frame.meta.seq), reg.source, reg.landmarks, reg.reprojection_px,
-                                   None if reg.pose is None else tuple(round(v, 4) for v in (
-                                       reg.pose.north_m, reg.pose.east_m, reg.pose.down_m, reg.pose.roll_rad,
-                                       reg.pose.pitch_rad, reg.pose.yaw_rad)), round(view.sharpness, 3)))
-        cells = cells_in(view, grid)
-        if cells is None:
-            continue
-        sl = (slice(cells.y0, cells.y0 + cells.seen.shape[0]), slice(cells.x0, cells.x0 + cells.seen.shape[1]))
-        best = max(best, view.sharpness)   # what a registered view of this quality would weigh
-        trusted = cells.seen & _within(reg, cells)
-        w = _weight(view, landmarks) * cells.centre_weight * (0.25 + 0.75 * cells.confidence) * cells.seen
-        w = np.where(trusted, w, ESTIMATE_WEIGHT * w)
-        vote[sl] += w * np.where(cells.free, 1.0, -1.0)
-        total[sl] += w
-        seen[sl] |= cells.seen
-        if landmarks is not None and not reg.registered:
-            continue   # placed by the estimate alone: its cells vote (weakly), its markers and goals would lie
-        inside = {(int(x) + cells.x0, int(y) + cells.y0) for y, x in zip(*np.nonzero(trusted))}
-        frame_goals = (goals_in(view, grid) - shelf_cells) & inside
-        goals |= frame_goals
-        marker_vote[sl] += w * (cells.marker_like & trusted)
-        ys, xs = np.nonzero(cells.marker_like & trusted)
-        candidates = {(int(x) + cells.x0, int(y) + cells.y0) for x, y in zip(xs, ys)} - frame_goals - shelf_cells
-        sightings += [s for s in read_markers(view, candidates, grid, warnings)
-                      if s.cell not in shelf_cells and s.cell in inside]
-    free = (vote > 0) & seen
-    agreement = np.abs(vote) / np.maximum(total, 1e-12)
-    # Weak against this mission's best view: blur or noise that is the same everywhere
-    # leaves every cell as sure as the images allow.
-    unsure_mask = seen & ((agreement < UNSURE_AGREEMENT) | (total < UNSURE_WEIGHT * best))
-    for x, y in shelf_cells:
-        free[y, x], unsure_mask[y, x] = False, False
-    robots = settle(sightings, known_ids, warnings)
-    robot_cells = set(robots.values())
-    # A marker most views agree on: one misregistered view's contrast at a shelf edge is not one.
-    marker_like = marker_vote > 0.5 * total
-    marked = {(int(x), int(y)) for y, x in zip(*np.nonzero(marker_like))} - shelf_cells
-    unidentified = sorted(marked - robot_cells - goals)
-    for x, y in list(robot_cells) + list(goals) + unidentified:
-        free[y, x] = seen[y, x] = True   # floor under a robot or a goal marker
-        unsure_mask[y, x] = False
-    if unidentified:
-        warnings.append(f"{len(unidentified)} marker(s) seen but not read, at {unidentified[:5]}")
-    unsure = sorted((int(x), int(y)) for y, x in zip(*np.nonzero(unsure_mask)))
-    if unsure:
-        free[unsure_mask] = False      # an obstacle until a closer look says otherwise
-        warnings.append(f"{len(unsure)} cell(s) unsure (views disagree or only weak views), at {unsure[:5]}")
-    estimated = [r.seq for r in reports if r.source != "landmarks"]
-    if landmarks is not None and estimated:
-        warnings.append(f"{len(estimated)} frame(s) placed by the pose estimate alone (too few landmarks): "
-                        f"seq {estimated[:5]}")
-    return WorldModel(free=free, robots=robots, goals=sorted(goals), seen=seen,
-                      unseen=int(width * height - seen.sum()), unidentified=unidentified, warnings=warnings,
-                      unsure=unsure, frames=reports)
+        fusion.add(item)
+    return fusion.model()

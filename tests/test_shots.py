@@ -1,0 +1,126 @@
+"""Images asked for on the move: replies taken in order, perceived off the caller's thread,
+images taken elsewhere set aside for a retake, a silent or garbled camera named.
+
+The whole path over Zenoh with the world's camera and a flying vehicle is exercised by
+every mission test (tests/test_end_to_end.py); here the camera is a small queryable on
+the in-memory transport, so each case can be made to happen."""
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from protocol.errors import MissionError
+from protocol.messages import CameraFrame, CameraRequest, decode, encode
+from protocol.transport import MemoryBus, MemoryTransport
+from uav_agent.shots import Shots, taken_at
+
+KEY = "t/world/camera"
+
+
+def _frame(seq: int, north: float, east: float, alt: float, sigma: float = 0.0) -> CameraFrame:
+    return CameraFrame(width=4, height=3, fx=2.0, fy=2.0, cx=1.5, cy=1.0, north_m=north, east_m=east, down_m=-alt,
+                       yaw_rad=0.0, time_s=float(seq), png=b"x", seq=seq, pose_sigma_m=sigma)
+
+
+class Camera:
+    """Answers each request from a worker thread, a little later, from wherever `pose` says."""
+
+    def __init__(self, transport: MemoryTransport, answer=True) -> None:
+        self.pose = (0.0, 0.0, 10.0)
+        self.seq = 0
+        self.answer = answer
+        transport.serve(KEY, self._on)
+
+    def _on(self, q) -> None:
+        decode(q.payload, CameraRequest)
+        self.seq += 1
+        seq, pose = self.seq, self.pose   # the shutter opens as the request arrives
+
+        def later():
+            time.sleep(0.05)
+            if self.answer is True:
+                q.reply(encode(_frame(seq, *pose)))
+            elif self.answer == "garbage":
+                q.reply(b"\xff not a frame")
+            else:
+                q.finish()
+        threading.Thread(target=later, daemon=True).start()
+
+
+def _shots(transport, perceived, took, timeout_s=1.0):
+    return Shots(lambda: transport.request_start(KEY, encode(CameraRequest()), timeout_s), took.append,
+                 perceived.append, timeout_s)
+
+
+def test_images_arrive_in_order_and_are_perceived_while_the_caller_goes_on():
+    transport = MemoryTransport(MemoryBus())
+    camera = Camera(transport)
+    perceived, took = [], []
+    shots = _shots(transport, perceived, took)
+    try:
+        t = time.monotonic()
+        for i in range(5):
+            camera.pose = (-10.0 * i, 5.0, 10.0)
+            shots.shoot((-10.0 * i, 5.0, 10.0))
+        frames = shots.drain()
+    finally:
+        shots.close()
+    assert [f.seq for f in frames] == [1, 2, 3, 4, 5] and perceived == frames and took == frames
+    assert shots.missed == [] and time.monotonic() - t < 5
+
+
+def test_an_image_taken_away_from_its_pose_is_set_aside_for_a_retake():
+    transport = MemoryTransport(MemoryBus())
+    camera = Camera(transport)
+    perceived, took = [], []
+    shots = _shots(transport, perceived, took)
+    try:
+        camera.pose = (0.0, 0.0, 10.0)
+        shots.shoot((0.0, 0.0, 10.0))
+        camera.pose = (0.0, 3.0, 10.0)    # the vehicle already left for the next pose
+        shots.shoot((0.0, 0.0, 10.0))
+        frames = shots.drain()
+    finally:
+        shots.close()
+    assert [f.seq for f in frames] == [1] and shots.missed == [(0.0, 0.0, 10.0)]
+    assert len(took) == 2 and perceived == frames   # recorded, not perceived
+
+
+def test_taken_at_allows_the_hover_tolerance_and_the_estimates_stated_error():
+    assert taken_at(_frame(1, 0.9, 0.0, 10.0), (0.0, 0.0, 10.0))
+    assert not taken_at(_frame(1, 1.2, 0.0, 10.0), (0.0, 0.0, 10.0))
+    assert taken_at(_frame(1, 1.2, 0.0, 10.0, sigma=0.2), (0.0, 0.0, 10.0))
+    assert not taken_at(_frame(1, 0.0, 0.0, 12.0), (0.0, 0.0, 10.0))
+
+
+@pytest.mark.parametrize("answer,match", [(False, "no answer from the world's camera within 0.5 s"),
+                                          ("garbage", "the world's camera answered garbage")])
+def test_a_silent_or_garbled_camera_is_a_one_line_mission_error(answer, match):
+    transport = MemoryTransport(MemoryBus())
+    Camera(transport, answer=answer)
+    shots = _shots(transport, [], [], timeout_s=0.5)
+    try:
+        shots.shoot()
+        with pytest.raises(MissionError, match=match) as exc:
+            shots.drain()
+    finally:
+        shots.close()
+    assert "\n" not in str(exc.value)
+
+
+def test_a_perception_fault_reaches_the_caller():
+    transport = MemoryTransport(MemoryBus())
+    Camera(transport)
+
+    def broken(frame):
+        raise ValueError("bad pixels")
+
+    shots = Shots(lambda: transport.request_start(KEY, encode(CameraRequest()), 1.0), lambda f: None, broken, 1.0)
+    try:
+        shots.shoot()
+        with pytest.raises(MissionError, match="perceiving an image failed: ValueError: bad pixels"):
+            shots.drain()
+    finally:
+        shots.close()

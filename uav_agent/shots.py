@@ -1,0 +1,136 @@
+"""Images asked for without waiting for them, and perceived as they arrive.
+
+The world opens the shutter when the request arrives, so the vehicle may fly on
+to the next pose while the image is rendered, sent and perceived. One thread
+receives the replies in order, another hands each frame to the mission (its
+record, the live preview) and folds it into a `Fusion`: the images are perceived
+while the vehicle is still flying the survey.
+
+The request and the next flight command travel on different links (Zenoh,
+MAVLink), so the vehicle must not fly on before the shutter has opened. After
+each request `shoot` waits for a `fence`: a cheap query on the same Zenoh link,
+which a world answers after the requests sent before it (our world opens the
+shutter as a request arrives). A request is also sent only once the previous
+image has arrived, so the world's camera is idle and serves it at once. Against a
+world that orders its queries otherwise, an image whose published pose is not
+where it was asked for is not used: it is listed in `missed`, for the caller to
+take again, holding still.
+"""
+from __future__ import annotations
+
+import math
+import queue
+import threading
+from typing import Callable
+
+from protocol.errors import MissionError, ProtocolError
+from protocol.messages import CameraFrame, decode
+from protocol.transport import PendingRequest
+
+Where = tuple[float, float, float]   # north, east, altitude above home
+
+
+class Shots:
+    """`shoot()` asks for an image and returns once the world has taken it in hand;
+    `drain()` waits until every image asked for so far has been perceived."""
+
+    def __init__(self, start: Callable[[], PendingRequest], on_frame: Callable[[CameraFrame], None],
+                 perceive: Callable[[CameraFrame], object] | None = None, timeout_s: float = 10.0,
+                 fence: Callable[[], object] | None = None) -> None:
+        self._start, self._on_frame, self._perceive, self._fence = start, on_frame, perceive, fence
+        self._timeout_s = timeout_s
+        self._requests: queue.Queue[tuple[PendingRequest, Where | None] | None] = queue.Queue()
+        self._frames: queue.Queue[tuple[CameraFrame, Where | None] | None] = queue.Queue()
+        self._cv = threading.Condition()
+        self._asked = self._arrived = self._handled = 0
+        self._error: str | None = None
+        self.frames: list[CameraFrame] = []
+        self.missed: list[Where] = []
+        self._threads = [threading.Thread(target=self._receive, name="shots-receive", daemon=True),
+                         threading.Thread(target=self._digest, name="shots-perceive", daemon=True)]
+        for t in self._threads:
+            t.start()
+
+    def shoot(self, where: Where | None = None) -> None:
+        """Ask for an image; `where` is where the vehicle holds for it."""
+        with self._cv:
+            self._cv.wait_for(lambda: self._arrived >= self._asked, timeout=self._timeout_s)
+            self._asked += 1
+        self._requests.put((self._start(), where))
+        if self._fence is not None:
+            self._fence()
+
+    def drain(self) -> list[CameraFrame]:
+        """Every image so far, perceived; MissionError if one never came or did not decode."""
+        with self._cv:
+            # Each image has its own query timeout, and perceiving one takes a second at most.
+            limit = (self._asked - self._handled) * (self._timeout_s + 5.0) + 5.0
+            if not self._cv.wait_for(lambda: self._handled >= self._asked, timeout=limit):
+                raise MissionError(f"{self._asked - self._handled} image(s) neither arrived nor were perceived "
+                                   f"within {limit:g} s")
+            if self._error is not None:
+                raise MissionError(self._error)
+            return list(self.frames)
+
+    def close(self) -> None:
+        self._requests.put(None)
+        for t in self._threads:
+            t.join(timeout=self._timeout_s + 5.0)
+
+    def _fail(self, error: str) -> None:
+        with self._cv:
+            if self._error is None:
+                self._error = error
+            self._arrived += 1
+            self._handled += 1
+            self._cv.notify_all()
+
+    def _receive(self) -> None:
+        while (job := self._requests.get()) is not None:
+            pending, where = job
+            replies = pending.wait()
+            if not replies:
+                self._fail(f"no answer from the world's camera within {self._timeout_s:g} s")
+                continue
+            try:
+                frame = decode(replies[0], CameraFrame)
+            except ProtocolError as exc:
+                self._fail(f"the world's camera answered garbage: {exc}")
+                continue
+            with self._cv:
+                self._arrived += 1
+                self._cv.notify_all()
+            self._frames.put((frame, where))
+        self._frames.put(None)
+
+    def _digest(self) -> None:
+        while (job := self._frames.get()) is not None:
+            error = None
+            try:
+                self._take(*job)
+            except MissionError as exc:
+                error = str(exc)
+            except Exception as exc:  # noqa: BLE001 - a fault here must reach the mission, not kill a thread
+                error = f"perceiving an image failed: {type(exc).__name__}: {exc}"
+            with self._cv:
+                self._handled += 1
+                if error is not None and self._error is None:
+                    self._error = error
+                self._cv.notify_all()
+
+    def _take(self, frame: CameraFrame, where: Where | None) -> None:
+        self._on_frame(frame)
+        if where is not None and not taken_at(frame, where):
+            self.missed.append(where)
+            return
+        self.frames.append(frame)
+        if self._perceive is not None:
+            self._perceive(frame)
+
+
+def taken_at(frame: CameraFrame, where: Where, tolerance_m: float = 1.0) -> bool:
+    """Whether the frame's published pose is at `where`, within the hover tolerance and three
+    sigmas of the pose estimate's stated error."""
+    slack = tolerance_m + 3.0 * frame.pose_sigma_m
+    north, east, alt = where
+    return math.hypot(frame.north_m - north, frame.east_m - east) <= slack and abs(-frame.down_m - alt) <= slack
