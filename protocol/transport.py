@@ -74,7 +74,10 @@ class Transport(ABC):
     def subscribe(self, key: str, callback: Callback) -> Handle: ...
 
     @abstractmethod
-    def serve(self, key: str, handler: Callable[[IncomingQuery], None]) -> Handle: ...
+    def serve(self, key: str, handler: Callable[[IncomingQuery], None], inline: bool = False) -> Handle:
+        """Answer queries on `key`. `inline` handlers run on the transport's receiving thread, so
+        the queries of one session reach every inline handler in the order they were sent; they
+        must return at once (answer later from elsewhere if the work is long)."""
 
     @abstractmethod
     def request_start(self, key: str, payload: bytes, timeout: float) -> PendingRequest:
@@ -178,9 +181,12 @@ class ZenohTransport(Transport):
         sub = self.session.declare_subscriber(key, lambda s: cb(str(s.key_expr), s.payload.to_bytes()))
         return self._keep(Handle(sub.undeclare, sub))
 
-    def serve(self, key: str, handler: Callable[[IncomingQuery], None]) -> Handle:
+    def serve(self, key: str, handler: Callable[[IncomingQuery], None], inline: bool = False) -> Handle:
         h = _guard(handler, f"queryable {key}")
-        qbl = self.session.declare_queryable(key, lambda q: h(_ZenohQuery(q)), complete=True)
+        # zenoh-python runs a callback on a thread of its own per queryable unless told otherwise
+        # (indirect): then two queryables see one session's queries in no particular order.
+        callback = self._z.handlers.Callback(lambda q: h(_ZenohQuery(q)), indirect=not inline)
+        qbl = self.session.declare_queryable(key, callback, complete=True)
         return self._keep(Handle(qbl.undeclare, qbl))
 
     def request_start(self, key: str, payload: bytes, timeout: float) -> PendingRequest:
@@ -283,7 +289,7 @@ class MemoryTransport(Transport):
     def subscribe(self, key: str, callback: Callback) -> Handle:
         return self._add(self.bus.subs, (key, _guard(callback, f"subscriber {key}")))
 
-    def serve(self, key: str, handler: Callable[[IncomingQuery], None]) -> Handle:
+    def serve(self, key: str, handler: Callable[[IncomingQuery], None], inline: bool = False) -> Handle:
         return self._add(self.bus.queryables, (key, _guard(handler, f"queryable {key}")))
 
     def request_start(self, key: str, payload: bytes, timeout: float) -> PendingRequest:

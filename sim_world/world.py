@@ -299,8 +299,10 @@ class World(Lifecycle):
         self.desk = MoveDesk(self.judge, cfg.move_batch_timeout_s)
         t, k = self.transport, self.keys
         self.keep(
-            t.serve(k.world_info, self._on_info),
-            t.serve(k.camera, self._on_camera),
+            # In the order they were sent: a UAV flies on once an info query sent after its
+            # camera query is answered, so the shutter must have opened by then.
+            t.serve(k.world_info, self._on_info, inline=True),
+            t.serve(k.camera, self._on_camera, inline=True),
             t.serve(k.move, self._on_move),
             t.serve(k.moves_by_identity, self._on_move),
             t.serve(k.record, self._on_record),

@@ -134,6 +134,9 @@ class Mission:
         self.tick = 0                           # the last tick sent
         self.replans = 0
         self.monitored = 0
+        self._monitor_job = None                # the monitoring image in flight (a Shots)
+        self._monitor_result = None             # (plan id, tick, robots off their plan, seconds of work)
+        self._monitor_work = 0.0                # wall seconds the monitoring images took, off the tick loop
         self.blocked: dict[int, Cell] = {}      # robots out of the plan (lost, stalled, faulty) -> their cell
         self.blocked_at: dict[int, float] = {}  # when each was taken out (a later sign of life brings it back)
         self.verified: dict[int, bool] = {}
@@ -177,13 +180,13 @@ class Mission:
         return Fusion(self.info.width, self.info.height, self.info.cell_size_m, known_ids=known,
                       landmarks=self.landmarks)
 
-    def _shots(self, fusion) -> "Shots":
-        """Images asked for on the move, perceived into `fusion` as they arrive."""
+    def _shots(self, fusion, perceive=None) -> "Shots":
+        """Images asked for on the move, perceived into `fusion` (or by `perceive`) as they arrive."""
         from .shots import Shots
 
         return Shots(lambda: self.transport.request_start(self.keys.camera, encode(CameraRequest(seq=self._next())),
                                                           CAMERA_TIMEOUT_S),
-                     self._took, fusion.add, CAMERA_TIMEOUT_S,
+                     self._took, perceive or fusion.add, CAMERA_TIMEOUT_S,
                      fence=lambda: self.transport.request(self.keys.world_info, encode(WorldInfoRequest(seq=self._next())),
                                                           QUERY_TIMEOUT_S))
 
@@ -570,10 +573,12 @@ class Mission:
                     off = [r for r in plan.ids if self.fleet.cells.get(r) != plan.cell(r, k)]
                 if off:
                     faults = {"deviation": off}
-            if not faults and self._monitor_due(k):
-                off = self._monitor(k)
+            if not faults:
+                off = self._monitor_seen()
                 if off:
                     faults = {"deviation": off}
+                elif self._monitor_job is None and self._monitor_due(k):
+                    self._monitor(k)
             if not faults:
                 back = self._rejoining()
                 if back:
@@ -587,6 +592,7 @@ class Mission:
                 self.transport.put(self.keys.mission_status, encode(MissionStatus(
                     phase="executing", tick=k, ticks=self.plan.end_tick, done=done, robots=len(self.ids),
                     seq=self._next())))
+        self._monitor_stop()
         self.ticks = self.tick
         self.clock.lap("execute")
 
@@ -594,30 +600,57 @@ class Mission:
         every = self.cfg.monitor_every
         if every is not None:
             return every > 0 and k % every == 0
-        # Auto: the images may take at most MONITOR_SHARE of the execution time. An image costs what
-        # the last one did, so the next is due once the time since execution began is that large.
+        # Auto: the images' work (render, send, perceive: off the tick loop, but on the same cores)
+        # may take at most MONITOR_SHARE of the execution time. An image costs what the last one
+        # did, so the next is due once the time since execution began is that large.
         if k < MONITOR_FIRST:
             return False
-        spent = self.clock.timings.get("monitor", 0.0)
+        spent = self._monitor_work
         last = spent / self.monitored if self.monitored else 0.0
         running = time.perf_counter() - self._exec_t0
         return (spent + last) <= MONITOR_SHARE * running
 
-    def _monitor(self, k: int) -> list[int]:
-        """One image from where the UAV hovers, taken while the fleet holds after tick k: robots seen
-        off their planned cell. Robots outside the image are not checked until the next full look."""
-        from .perception import perceive
-
+    def _monitor(self, k: int) -> None:
+        """Take one image from where the UAV hovers while the fleet holds after tick k, and go on:
+        the fleet holds only until the shutter has opened; the image is perceived meanwhile and
+        `_monitor_seen` reports the robots it shows off their planned cell at tick k. Robots
+        outside the image are not checked until the next full look."""
         t = time.perf_counter()
-        frame = self._capture()
-        model = perceive([frame], self.info.width, self.info.height, self.info.cell_size_m,
-                         known_ids=set(self.plan.ids), landmarks=self.landmarks)
-        off = sorted(r for r, c in model.robots.items() if r in self.plan.paths and tuple(c) != self.plan.cell(r, k))
+        plan, fusion = self.plan, self._fusion(set(self.plan.ids))
+
+        def judge(frame: CameraFrame) -> None:   # on the images' thread
+            fusion.add(frame)
+            model = fusion.model()
+            off = sorted(r for r, c in model.robots.items() if r in plan.paths and tuple(c) != plan.cell(r, k))
+            self._monitor_result = (plan.plan_id, k, off, time.perf_counter() - t)
+
+        self._monitor_result = None
+        self._monitor_job = self._shots(fusion, judge)
+        self._monitor_job.shoot()
         self.clock.timings["monitor"] = round(self.clock.timings.get("monitor", 0.0) + time.perf_counter() - t, 4)
         self.monitored += 1
-        if off:
-            self._event("camera-deviation", off, f"seen off its planned cell after tick {k}")
+
+    def _monitor_seen(self) -> list[int]:
+        """The robots the last monitoring image, once perceived, shows off their plan (if the plan
+        it was judged against is still the one flown)."""
+        job = self._monitor_job
+        if job is None or not job.done():
+            return []
+        self._monitor_stop()
+        plan_id, k, off, took = self._monitor_result
+        self._monitor_work += took
+        if plan_id != self.plan.plan_id or not off:
+            return []
+        self._event("camera-deviation", off, f"seen off its planned cell after tick {k}")
         return off
+
+    def _monitor_stop(self) -> None:
+        job, self._monitor_job = self._monitor_job, None
+        if job is not None:
+            try:
+                job.drain()
+            finally:
+                job.close()
 
     def _done_for(self, robot: int, plan: PlanState) -> bool:
         d = self.fleet.done.get(robot)

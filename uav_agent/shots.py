@@ -60,6 +60,11 @@ class Shots:
         if self._fence is not None:
             self._fence()
 
+    def done(self) -> bool:
+        """Whether every image asked for has been perceived (or failed): `drain` would not wait."""
+        with self._cv:
+            return self._handled >= self._asked
+
     def drain(self) -> list[CameraFrame]:
         """Every image so far, perceived; MissionError if one never came or did not decode."""
         with self._cv:
