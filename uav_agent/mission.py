@@ -452,16 +452,17 @@ class Mission:
             self.flight.goto(*self._hover_ned)
         return model
 
-    def _look(self, cells: list[Cell] | None = None) -> dict[int, Cell]:
+    def _look(self, cells: list[Cell] | None = None, back: bool = True) -> dict[int, Cell]:
         """A fresh look from the survey poses, at the whole floor or only at the poses that
-        see `cells`: robot id -> the cell the camera sees it on."""
+        see `cells`, then `back` to the hover: robot id -> the cell the camera sees it on."""
         from .survey import covering, nearer_end_first
 
         poses = self._poses if cells is None else covering(self._poses, cells, self.info.cell_size_m)
         here = self.flight.position_ned()
         fusion = self._fusion(set(self.ids))
         self._tour(nearer_end_first(poses, (here[0], here[1])), fusion)
-        self.flight.goto(*self._hover_ned)
+        if back:
+            self.flight.goto(*self._hover_ned)
         model = self._see(fusion, for_map=False)
         return {r: tuple(c) for r, c in model.robots.items()}
 
@@ -747,7 +748,8 @@ class Mission:
         self._status("verify", message=f"a fresh look at {len(plan.ids)} robots' goals")
         goals = {r: self.goal_of.get(r) for r in self.ids}
         # Only the goals matter: a robot anywhere else is not on its goal, seen or not.
-        seen = self.seen_at_end = self._look([tuple(g) for g in goals.values() if g is not None])
+        # The vehicle lands where the look ends, unless a repair follows (then it flies back anyway).
+        seen = self.seen_at_end = self._look([tuple(g) for g in goals.values() if g is not None], back=False)
         for r in self.ids:
             g = goals[r]
             self.verified[r] = g is not None and seen.get(r) == tuple(g)
