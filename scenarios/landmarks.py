@@ -32,7 +32,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
 from protocol.errors import MapError
 
@@ -60,6 +59,8 @@ class LandmarkSet:
 
 def _nearest_blocks(obstacle_block: np.ndarray, sites: np.ndarray, radius: float) -> list[tuple[int, int] | None]:
     """For each site (x, y) of the lattice: the top-left cell of the nearest marked block within `radius`."""
+    from scipy import ndimage   # on use: only the world places landmarks
+
     if not obstacle_block.any():
         return [None] * len(sites)
     dist, (iy, ix) = ndimage.distance_transform_edt(~obstacle_block, return_indices=True)

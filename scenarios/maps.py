@@ -11,7 +11,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy import ndimage
 
 from protocol.errors import MapError
 from protocol.messages import MAX_GRID_SIDE
@@ -110,6 +109,8 @@ def resolve_map(spec: str, seed: int = 0) -> tuple[str, np.ndarray]:
 
 def largest_component(free: np.ndarray) -> np.ndarray:
     """Mask of the largest 4-connected free region: every goal placed in it is reachable."""
+    from scipy import ndimage   # on use: a plan from a scenario file never pays its import
+
     labels, n = ndimage.label(free)
     if n == 0:
         raise MapError("the map has no free cell")
