@@ -84,6 +84,17 @@ class Children:
                                                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                                preexec_fn=die_with_parent))
 
+    def cpu_s(self) -> float | None:
+        """CPU seconds used so far by this process and the children (None where /proc is not there)."""
+        total = sum(os.times()[:2])
+        for p in self.procs:
+            try:
+                fields = Path(f"/proc/{p.pid}/stat").read_text().rsplit(")", 1)[1].split()
+            except (OSError, IndexError):
+                return None
+            total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        return total
+
     def dead(self) -> str:
         for p in self.procs:
             if p.poll() not in (None, 0):
@@ -117,8 +128,13 @@ def _endpoint() -> str:
 class Measured:
     ticks: int
     seconds: float
+    cpu_s: float | None = None     # CPU of every process of the run over the timed ticks
     collisions: int = 0
     refused: int = 0
+
+    @property
+    def cpu_ms_per_tick(self) -> float | None:
+        return None if self.cpu_s is None else 1000 * self.cpu_s / self.ticks
 
     @property
     def rate(self) -> float:
@@ -157,15 +173,15 @@ def run_mission(n: int, per_process: int, ticks: int, tmp: Path) -> Measured:
             refused = [r for r, a in fl.acks.items() if not a.ok]
             if refused:
                 raise MissionError(f"robot {refused[0]} refused the lane plan: {fl.acks[refused[0]].error}")
-            t0 = 0.0
+            t0, cpu0 = 0.0, None
             for k in range(1, ticks + 1):
                 if k == WARMUP_TICKS + 1:
-                    t0 = time.perf_counter()
-                hub.put(keys.tick, encode(Tick(k=k, ticks=ticks, plan_id="lanes")))
+                    t0, cpu0 = time.perf_counter(), kids.cpu_s()
+                hub.put(keys.tick, encode(Tick(k=k, ticks=ticks, plan_id="lanes", batch_states=True)))
                 faults = fl.wait_tick(ids, k, TICK_TIMEOUT_S, interrupt=lambda: False)
                 if faults:
                     raise MissionError(f"tick {k}: {faults}")
-            seconds = time.perf_counter() - t0
+            seconds, cpu1 = time.perf_counter() - t0, kids.cpu_s()
             with fl.cv:
                 off = [r for r in ids if fl.cells.get(r) != lane.cell(r, ticks)]
             if off:
@@ -177,7 +193,8 @@ def run_mission(n: int, per_process: int, ticks: int, tmp: Path) -> Measured:
             hub.put(keys.mission_end, encode(MissionEnd(completed=True)))
             if rec.ticks != ticks:
                 raise MissionError(f"the world judged {rec.ticks} ticks, not {ticks}")
-            return Measured(ticks - WARMUP_TICKS, seconds, rec.collisions, len(rec.refused))
+            cpu = cpu1 - cpu0 if cpu0 is not None and cpu1 is not None else None
+            return Measured(ticks - WARMUP_TICKS, seconds, cpu, rec.collisions, len(rec.refused))
         finally:
             fl.close()
             kids.stop()
@@ -221,13 +238,15 @@ def run_barrier(processes: int, ticks: int, tmp: Path) -> Measured:
                 kids.spawn("uav_robots.bench_ticks", ["--echo", "--fleet", fleet, "--connect", endpoint,
                                                       "--name", str(i)], tmp / f"echo-{i}.log")
             wait(lambda: len(alive) == processes, f"{len(alive)}/{processes} echo processes ready", READY_TIMEOUT_S)
-            t0 = 0.0
+            t0, cpu0 = 0.0, None
             for k in range(1, ticks + 1):
                 if k == WARMUP_TICKS + 1:
-                    t0 = time.perf_counter()
+                    t0, cpu0 = time.perf_counter(), kids.cpu_s()
                 hub.put(f"{keys.prefix}/bench/tick", str(k).encode())
                 wait(lambda: got.get(k, 0) >= processes, f"tick {k} answered", TICK_TIMEOUT_S)
-            return Measured(ticks - WARMUP_TICKS, time.perf_counter() - t0)
+            seconds, cpu1 = time.perf_counter() - t0, kids.cpu_s()
+            cpu = cpu1 - cpu0 if cpu0 is not None and cpu1 is not None else None
+            return Measured(ticks - WARMUP_TICKS, seconds, cpu)
         finally:
             kids.stop()
 
@@ -254,6 +273,14 @@ def echo_main(argv: list[str]) -> int:
 
 
 # ----------------------------------------------------------------- the command
+def _ms(v: float | None) -> str:
+    return "-" if v is None else f"{v:.1f}"
+
+
+def _round(v: float | None) -> float | None:
+    return None if v is None else round(v, 2)
+
+
 def _load() -> str:
     try:
         return " / ".join(f"{v:.2f}" for v in os.getloadavg())
@@ -266,9 +293,14 @@ def _hosting_text(n: int, per_process: int) -> str:
     return "one process per robot" if per_process == 1 else f"{groups} pool(s) of up to {per_process}"
 
 
-def per_process_for(n: int, max_processes: int, pools: int) -> int:
-    """One process per robot up to `max_processes` robots; above, `pools` processes share the fleet."""
-    return 1 if n <= max_processes else math.ceil(n / pools)
+def hostings_for(n: int, max_processes: int, pools: int) -> list[int]:
+    """Robots per process to measure: one process per robot up to `max_processes` robots, and `pools`
+    processes sharing the fleet (both where both apply)."""
+    out = [1] if n <= max_processes else []
+    per = math.ceil(n / pools)
+    if per > 1:
+        out.append(per)
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -284,35 +316,40 @@ def run(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(prefix="uavr-bench-ticks-") as tmp_s:
         tmp = Path(tmp_s)
         for n in sizes:
-            per = per_process_for(n, args.max_processes, args.pools)
-            procs = len(hosting(n, per))
-            _print(f"{n} robots, {_hosting_text(n, per)}: mission ...")
-            try:
-                m = run_mission(n, per, args.ticks, tmp)
-            except MissionError as exc:
-                raise UavRobotsError(f"bench ticks, {n} robots: {exc}") from None
-            _print(f"  {m.rate:.1f} ticks/s; bare barrier with {procs} process(es) ...")
-            try:
-                b = run_barrier(procs, args.ticks, tmp)
-            except MissionError as exc:
-                raise UavRobotsError(f"bench ticks, barrier of {procs}: {exc}") from None
-            _print(f"  {b.rate:.1f} ticks/s")
-            rows.append([str(n), _hosting_text(n, per), str(procs), f"{m.rate:.1f}", f"{b.rate:.1f}",
-                         f"{m.rate / b.rate:.2f}", f"{m.collisions}", f"{m.refused}"])
-            summary.append({"robots": n, "processes": procs, "per_process": per, "ticks": m.ticks,
-                            "mission_s": round(m.seconds, 4), "ticks_per_s": round(m.rate, 2),
-                            "barrier_ticks_per_s": round(b.rate, 2), "collisions": m.collisions,
-                            "refused": m.refused})
+            for per in hostings_for(n, args.max_processes, args.pools):
+                procs = len(hosting(n, per))
+                _print(f"{n} robots, {_hosting_text(n, per)}: mission ...")
+                try:
+                    m = run_mission(n, per, args.ticks, tmp)
+                except MissionError as exc:
+                    raise UavRobotsError(f"bench ticks, {n} robots in {procs} process(es): {exc}") from None
+                _print(f"  {m.rate:.1f} ticks/s; bare barrier with {procs} process(es) ...")
+                try:
+                    b = run_barrier(procs, args.ticks, tmp)
+                except MissionError as exc:
+                    raise UavRobotsError(f"bench ticks, barrier of {procs}: {exc}") from None
+                _print(f"  {b.rate:.1f} ticks/s")
+                rows.append([str(n), _hosting_text(n, per), str(procs), f"{m.rate:.1f}", _ms(m.cpu_ms_per_tick),
+                             f"{b.rate:.1f}", _ms(b.cpu_ms_per_tick), f"{m.rate / b.rate:.2f}", f"{m.collisions}",
+                             f"{m.refused}"])
+                summary.append({"robots": n, "processes": procs, "per_process": per, "ticks": m.ticks,
+                                "mission_s": round(m.seconds, 4), "ticks_per_s": round(m.rate, 2),
+                                "cpu_ms_per_tick": _round(m.cpu_ms_per_tick), "barrier_ticks_per_s": round(b.rate, 2),
+                                "barrier_cpu_ms_per_tick": _round(b.cpu_ms_per_tick), "collisions": m.collisions,
+                                "refused": m.refused})
     load_after = _load()
-    header = ["robots", "hosting", "processes", "ticks/s (mission)", "ticks/s (bare barrier)", "mission / barrier",
-              "collisions", "refused moves"]
+    header = ["robots", "hosting", "processes", "ticks/s", "CPU ms/tick", "bare barrier ticks/s",
+              "barrier CPU ms/tick", "ticks/s / barrier", "collisions", "refused moves"]
     notes = [
         f"Boundary: in-process ticks/s of the lockstep loop, {args.ticks - WARMUP_TICKS} timed ticks after "
         f"{WARMUP_TICKS} warm-up ticks; from the hub's put of Tick k to every robot's RobotState of tick k, "
         "through real robot and world processes over Zenoh on loopback (start-up, plans and shut-down not timed).",
         "Plan: every robot paces its own lane (8 cells, back and forth), so every tick moves every robot and the "
         "world judges every move; collisions and refused moves are the world's record.",
-        f"Hosting: one process per robot up to {args.max_processes} robots, above that {args.pools} pools.",
+        f"Hosting: one process per robot up to {args.max_processes} robots, and {args.pools} pools (robot processes "
+        "hosting many robots) at every count.",
+        "CPU ms/tick: CPU time of every process of the run (hub, world, robots; or hub and echoes) over the timed "
+        "ticks, per tick: on a loaded machine the rate falls with the share of the cores the run gets, this less so.",
         "Bare barrier: the same number of processes, each answering every tick with one put; nothing decoded or "
         "judged: the transport's ceiling for this process count, measured in the same run.",
         f"Machine: {os.cpu_count()} cores; load average (1/5/15 min) {load_before} before, {load_after} after.",
@@ -331,8 +368,9 @@ def add_parser(sub) -> None:
     p.add_argument("--robots", default="50,500,1000", help="robot counts (comma-separated; default 50,500,1000)")
     p.add_argument("--ticks", type=int, default=300, help="ticks per run, the first 10 untimed (default 300)")
     p.add_argument("--max-processes", type=int, default=64,
-                   help="one process per robot up to this many robots (default 64, as `uav-robots run`)")
-    p.add_argument("--pools", type=int, default=4, help="robot processes above --max-processes (default 4)")
+                   help="one process per robot is measured up to this many robots (default 64, as `uav-robots run`)")
+    p.add_argument("--pools", type=int, default=4,
+                   help="robot processes when robots share them, measured at every count (default 4)")
     p.add_argument("--out", default="bench-out", help="directory for the markdown and CSV (default bench-out/)")
 
 
