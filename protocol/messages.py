@@ -183,6 +183,11 @@ class StateBatch(Message):
     tick: TickNo
     states: Annotated[list[tuple[RobotId, Cell, Status, Text, Text]], MaxLen(MAX_ROBOTS)]
 
+    def robot_states(self) -> list[RobotState]:
+        """Each entry as the RobotState it stands for."""
+        return [RobotState(robot=r, tick=self.tick, cell=c, status=st, plan_id=p, error=e)
+                for r, c, st, p, e in self.states]
+
 
 @dataclass(frozen=True)
 class Done(Message):

@@ -106,3 +106,31 @@ def test_bench_ticks_bad_input_is_one_line():
     assert done.returncode == 2 and "warm-up" in done.stderr and "Traceback" not in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1
 
+
+
+def test_the_live_view_and_the_recording_read_a_pools_batch(tmp_path):
+    from uav_robots.observer import Sample
+    from uav_robots.recording import read_mcap, write_mcap
+    from uav_robots.view_state import FleetView
+
+    keys = Keys("v")
+    batch = encode(StateBatch(tick=4, states=[(0, (2, 1), "stepping", "p", ""), (1, (3, 1), "done", "p", "")]))
+    view = FleetView()
+    view.apply(keys.states_as([0, 1]), batch)
+    assert view.robots == {0: (2, 1, "stepping"), 1: (3, 1, "done")} and view.tick == 4
+    counts = write_mcap(tmp_path / "m.mcap", [Sample(1, keys.states_as([0, 1]), batch)], keys.prefix,
+                        ["....", "...."], 1.0)
+    assert counts["/fleet/state"] == 2
+    rec = read_mcap(tmp_path / "m.mcap")
+    assert rec.cells == {0: {4: (2, 1)}, 1: {4: (3, 1)}} and rec.ticks == 4
+
+
+def test_access_control_lets_a_pool_put_only_its_own_batch():
+    from protocol.security import access_control, robot_identity
+
+    keys = Keys("f")
+    acl = access_control("f", [robot_identity([0, 1, 2]), robot_identity([3, 4, 5])])
+    puts = {r["id"].split("/")[0]: r["key_exprs"] for r in acl["rules"]
+            if r["messages"] == ["put"] and r["flows"] == ["ingress"]}
+    assert keys.states_as([0, 1, 2]) in puts["robots-0-2"] and keys.states_as([3, 4, 5]) not in puts["robots-0-2"]
+    assert keys.states_as([3, 4, 5]) in puts["robots-3-5"]
