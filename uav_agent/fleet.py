@@ -9,8 +9,7 @@ import threading
 import time
 from typing import Callable
 
-from protocol.errors import MissionError, ProtocolError
-from protocol.errors import UavRobotsError
+from protocol.errors import MissionError, ProtocolError, UavRobotsError
 from protocol.keys import Keys, ids_of_states_key, robot_id_from_key
 from protocol.log import Throttled
 from protocol.messages import Done, PlanAck, RobotState, StateBatch, decode

@@ -181,11 +181,14 @@ def run_mission(n: int, per_process: int, ticks: int, tmp: Path) -> Measured:
                 faults = fl.wait_tick(ids, k, TICK_TIMEOUT_S, interrupt=lambda: False)
                 if faults:
                     raise MissionError(f"tick {k}: {faults}")
+                # As the UAV does after every tick: a robot off its plan would need a repair, not a figure.
+                with fl.cv:
+                    off = [r for r in ids if fl.cells.get(r) != lane.cell(r, k)]
+                if off:
+                    raise MissionError(f"tick {k}: robot(s) {off[:5]} off the plan (the world's answer: "
+                                       f"{fl.cells.get(off[0])}; a robot process late past the world's move "
+                                       "timeout is made to stay)")
             seconds, cpu1 = time.perf_counter() - t0, kids.cpu_s()
-            with fl.cv:
-                off = [r for r in ids if fl.cells.get(r) != lane.cell(r, ticks)]
-            if off:
-                raise MissionError(f"robot(s) {off[:5]} not where the plan puts them after tick {ticks}")
             replies = hub.request(keys.record, encode(RecordRequest()), 30.0)
             if not replies:
                 raise MissionError("the world did not answer the record request")
@@ -193,6 +196,10 @@ def run_mission(n: int, per_process: int, ticks: int, tmp: Path) -> Measured:
             hub.put(keys.mission_end, encode(MissionEnd(completed=True)))
             if rec.ticks != ticks:
                 raise MissionError(f"the world judged {rec.ticks} ticks, not {ticks}")
+            # The plan is collision-free: any refusal is a fault of the loop, not a figure to print.
+            if rec.collisions or rec.refused:
+                raise MissionError(f"the world counted {rec.collisions} collision(s) and {len(rec.refused)} refused "
+                                   f"move(s), first: {rec.refused[0] if rec.refused else '-'}")
             cpu = cpu1 - cpu0 if cpu0 is not None and cpu1 is not None else None
             return Measured(ticks - WARMUP_TICKS, seconds, cpu, rec.collisions, len(rec.refused))
         finally:
@@ -345,7 +352,8 @@ def run(args: argparse.Namespace) -> int:
         f"{WARMUP_TICKS} warm-up ticks; from the hub's put of Tick k to every robot's RobotState of tick k, "
         "through real robot and world processes over Zenoh on loopback (start-up, plans and shut-down not timed).",
         "Plan: every robot paces its own lane (8 cells, back and forth), so every tick moves every robot and the "
-        "world judges every move; collisions and refused moves are the world's record.",
+        "world judges every move; collisions and refused moves are the world's record (any makes the run fail), "
+        "and every robot must end where the plan puts it.",
         f"Hosting: one process per robot up to {args.max_processes} robots, and {args.pools} pools (robot processes "
         "hosting many robots) at every count.",
         "CPU ms/tick: CPU time of every process of the run (hub, world, robots; or hub and echoes) over the timed "
