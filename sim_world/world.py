@@ -18,7 +18,7 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
@@ -124,6 +124,14 @@ def build_truth(cfg: WorldConfig) -> Truth:
 Reply = Callable[[MoveResult], None]
 
 
+class Ask(NamedTuple):
+    """One robot's move of one tick, as the desk keeps it (a MoveRequest, or one move of a MoveBatch)."""
+    robot: int
+    tick: int
+    frm: Cell
+    to: Cell
+
+
 class MoveDesk:
     """Collects one tick's move requests and has them judged together.
 
@@ -144,18 +152,18 @@ class MoveDesk:
         self.batch_timeout_s = batch_timeout_s
         self.cv = threading.Condition()
         self.tick: int | None = None                          # the tick being collected
-        self.batch: dict[int, tuple[MoveRequest, Reply]] = {}
+        self.batch: dict[int, tuple[Ask, Reply]] = {}
         self.waiting: set[int] = set()                        # robots of this tick that have not asked yet
         self.deadline = 0.0
-        self.last: dict[int, tuple[MoveRequest, MoveResult]] = {}
+        self.last: dict[int, tuple[Ask, MoveResult]] = {}
         self._closed = False
         self._timer = threading.Thread(target=self._expire_loop, name="move-batches", daemon=True)
         self._timer.start()
 
     def submit(self, req: MoveRequest, reply: Reply) -> None:
-        self.submit_many([(req, reply)])
+        self.submit_many([(Ask(req.robot, req.tick, req.frm, req.to), reply)])
 
-    def submit_many(self, asks: list[tuple[MoveRequest, Reply]]) -> None:
+    def submit_many(self, asks: list[tuple[Ask, Reply]]) -> None:
         """Requests that arrived together (a pool's MoveBatch): judged under one lock, answered after it."""
         sends: list[tuple[Reply, MoveResult]] = []
         with self.cv:
@@ -163,7 +171,7 @@ class MoveDesk:
                 self._take(req, reply, sends)
         _send(sends)
 
-    def _take(self, req: MoveRequest, reply: Reply, sends: list[tuple[Reply, MoveResult]]) -> None:
+    def _take(self, req: Ask, reply: Reply, sends: list[tuple[Reply, MoveResult]]) -> None:
         j = self.judge
         if req.robot not in j.positions:
             sends.append((reply, j.slip(req.tick, req.robot, req.frm, req.to, f"unknown robot {req.robot}")))
@@ -428,22 +436,21 @@ class World(Lifecycle):
             q.reply(encode(MoveBatchResult(tick=batch.tick, results=[], seq=self._next_seq())))
             return
         lock = threading.Lock()
-        results: list[MoveResult | None] = [None] * len(batch.moves)
+        results: dict[int, MoveResult] = {}
         left = [len(batch.moves)]
 
-        def collector(i: int) -> Callable[[MoveResult], None]:
-            def reply(res: MoveResult) -> None:
-                with lock:
-                    results[i] = res
-                    left[0] -= 1
-                    if left[0]:
-                        return
-                out = [(r.robot, r.accepted, r.cell, r.reason) for r in results if r is not None]
-                q.reply(encode(MoveBatchResult(tick=batch.tick, results=out, seq=self._next_seq())))
-            return reply
+        # One answerer for the whole batch, not one closure per move: at 1,000 robots the
+        # per-move objects were a fifth of the world's time.
+        def reply(res: MoveResult) -> None:
+            with lock:
+                results[res.robot] = res
+                left[0] -= 1
+                if left[0]:
+                    return
+            out = [(r.robot, r.accepted, r.cell, r.reason) for r in results.values()]
+            q.reply(encode(MoveBatchResult(tick=batch.tick, results=out, seq=self._next_seq())))
         assert self.desk is not None
-        self.desk.submit_many([(MoveRequest(robot=robot, tick=batch.tick, frm=frm, to=to), collector(i))
-                               for i, (robot, frm, to) in enumerate(batch.moves)])
+        self.desk.submit_many([(Ask(robot, batch.tick, frm, to), reply) for robot, frm, to in batch.moves])
 
     def _on_record(self, q: IncomingQuery) -> None:
         if self._decode(q, RecordRequest) is None:
