@@ -81,6 +81,14 @@ class Keys:
     def all_states(self) -> str:
         return f"{self.prefix}/robot/*/state"
 
+    def states_as(self, ids: Sequence[int]) -> str:
+        """Where a pool puts the StateBatch of its robots `ids` (access control binds it to the pool)."""
+        return f"{self.prefix}/robots/{format_ids(ids)}/states"
+
+    @property
+    def all_state_batches(self) -> str:
+        return f"{self.prefix}/robots/*/states"
+
     @property
     def all_done(self) -> str:
         return f"{self.prefix}/robot/*/done"
@@ -176,6 +184,15 @@ def parse_ids(text: str) -> list[int]:
 
 
 MAX_IDS_LABEL = 4096   # characters of a move key's robot ids: bounded before parsing
+
+
+def ids_of_states_key(keys: Keys, key: str) -> list[int]:
+    """The robots a StateBatch's key names; UavRobotsError for a key that names no valid ids."""
+    head, tail = f"{keys.prefix}/robots/", "/states"
+    label = key[len(head):-len(tail)] if key.startswith(head) and key.endswith(tail) else ""
+    if not label or len(label) > MAX_IDS_LABEL:
+        raise UavRobotsError(f"state batch key {key[:80]!r} does not name robot ids")
+    return parse_ids(label)
 
 
 def ids_of_move_key(keys: Keys, key: str) -> list[int] | None:

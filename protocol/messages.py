@@ -119,10 +119,15 @@ class PlanAck(Message):
 
 @dataclass(frozen=True)
 class Tick(Message):
-    """UAV -> all robots: execute step k (move to plan cell k); `ticks` is the makespan."""
+    """UAV -> all robots: execute step k (move to plan cell k); `ticks` is the makespan.
+
+    `batch_states`: this UAV also reads StateBatch, so a pool may report all its robots' states
+    of the tick in one message (absent, as from an older UAV: one RobotState per robot).
+    """
     k: Annotated[int, Range(1, MAX_TICKS)]
     ticks: TickNo
     plan_id: Text
+    batch_states: bool = False
 
 
 @dataclass(frozen=True)
@@ -167,6 +172,21 @@ class RobotState(Message):
     status: Status
     plan_id: Text = ""
     error: Text = ""
+
+
+@dataclass(frozen=True)
+class StateBatch(Message):
+    """A pool -> UAV: the RobotStates of one tick of all its robots that executed it, in one put.
+
+    states: (robot, cell, status, plan_id, error) each, as in RobotState; sent only in answer to a
+    Tick with batch_states (a UAV that reads it), on the pool's own key."""
+    tick: TickNo
+    states: Annotated[list[tuple[RobotId, Cell, Status, Text, Text]], MaxLen(MAX_ROBOTS)]
+
+    def robot_states(self) -> list[RobotState]:
+        """Each entry as the RobotState it stands for."""
+        return [RobotState(robot=r, tick=self.tick, cell=c, status=st, plan_id=p, error=e)
+                for r, c, st, p, e in self.states]
 
 
 @dataclass(frozen=True)
@@ -298,7 +318,7 @@ class VehiclePose(Message):
 
 MESSAGE_TYPES: dict[str, type[Message]] = {
     cls.__name__: cls
-    for cls in (Plan, PlanAck, Tick, MoveRequest, MoveResult, MoveBatch, MoveBatchResult, RobotState, Done, CameraRequest,
+    for cls in (Plan, PlanAck, Tick, MoveRequest, MoveResult, MoveBatch, MoveBatchResult, RobotState, StateBatch, Done, CameraRequest,
                 CameraFrame, WorldInfoRequest, WorldInfo, RecordRequest, Record, MissionStatus, MissionEnd,
                 MissionEvent, VehiclePose)
 }
@@ -342,15 +362,17 @@ def _bytes_field(cls: type[Message]) -> str | None:
 
 def encode(msg: Message) -> bytes:
     cls = type(msg)
-    blob_name = _bytes_field(cls)
+    codec = _codec(cls)
     body: dict[str, Any] = {"type": cls.__name__, "v": PROTOCOL_VERSION}
-    for f in dataclasses.fields(cls):
-        if f.name != blob_name:
-            body[f.name] = getattr(msg, f.name)
-    head = json.dumps(body, separators=(",", ":")).encode()
-    if blob_name is None:
+    for name, _required, _conv in codec.fields:
+        body[name] = getattr(msg, name)
+    head = _ENCODER.encode(body).encode()
+    if codec.blob is None:
         return head
-    return head + b"\0" + getattr(msg, blob_name)
+    return head + b"\0" + getattr(msg, codec.blob)
+
+
+_ENCODER = json.JSONEncoder(separators=(",", ":"))
 
 
 class _NotANumber(Exception):

@@ -69,7 +69,7 @@ def _grants(k: Keys, who: Identity) -> list[tuple[list[str], str, list[str]]]:
     plans = [k.plan(r) for r in ids]
     move = [k.move_as(ids)]
     return [
-        (["put"], "ingress", [key for r in ids for key in (k.ack(r), k.state(r), k.done(r))]),
+        (["put"], "ingress", [key for r in ids for key in (k.ack(r), k.state(r), k.done(r))] + [k.states_as(ids)]),
         (["liveliness_token"], "ingress", [k.alive_robot(r) for r in ids]),
         # A pool subscribes to every plan with one wildcard (one callback thread); egress still
         # delivers only its own robots' plans.
@@ -82,7 +82,7 @@ def _grants(k: Keys, who: Identity) -> list[tuple[list[str], str, list[str]]]:
         (["reply"], "egress", move),
         # Where its puts and queries are wanted: a client sends nothing towards a key nobody declared.
         (["declare_subscriber"], "egress", [f"{k.prefix}/robot/*/{x}" for x in ("ack", "state", "done")]
-         + [key for r in ids for key in (k.ack(r), k.state(r), k.done(r))]),
+         + [key for r in ids for key in (k.ack(r), k.state(r), k.done(r))] + [k.all_state_batches, k.states_as(ids)]),
         (["declare_queryable"], "egress", [k.move, k.moves_by_identity]),
     ]
 

@@ -22,8 +22,8 @@ from protocol.config import add_session_arguments
 from protocol.errors import ProtocolError, UavRobotsError
 from protocol.keys import DEFAULT_FLEET, Keys, format_ids, parse_ids, robot_id_from_key  # noqa: F401 - re-exported
 from protocol.log import Throttled
-from protocol.messages import (Done, MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Plan, Tick, decode,
-                               encode)
+from protocol.messages import (Done, MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Plan, RobotState,
+                               StateBatch, Tick, decode, encode)
 from protocol.process import Lifecycle
 from protocol.transport import Transport, open_session
 
@@ -55,12 +55,14 @@ class RobotPool(Lifecycle):
         self.move_timeout_s = move_timeout_s
         self._seq = {r: 0 for r in self.machines}
         self._batch_seq = 0
+        self._states_seq = 0
         self._work: queue.Queue[tuple[str, Any] | None] = queue.Queue()
         self._uav_seen = False
         self._worker = threading.Thread(target=self._loop, name="robot-pool", daemon=True)
         self.label = format_ids(list(self.machines))
         # The key names who asks: under access control only this identity may ask there (docs/protocol.md, Security).
         self.move_key = self.keys.move_as(list(self.machines))
+        self.states_key = self.keys.states_as(list(self.machines))
         self.dropped = Throttled(f"robots {self.label}")   # undecodable or foreign messages: counted, rarely said
         self.faults = {f.robot: f for f in faults if f.robot in self.machines}
         self.dead: set[int] = set()
@@ -187,6 +189,10 @@ class RobotPool(Lifecycle):
         if not steps:
             return
         results = self._ask_world(tick.k, steps)
+        # A pool answers a UAV that reads StateBatch with one put, not one per robot: at 1,000
+        # robots the UAV's decoding of single states was most of a tick.
+        batch = tick.batch_states and len(self.machines) > 1
+        states: list[RobotState] = []
         for r, step in steps.items():
             m = self.machines[r]
             result = results.get(r)
@@ -195,9 +201,17 @@ class RobotPool(Lifecycle):
                 done = None
             else:
                 state, done = m.on_move_result(result, tick.plan_id)
-            self._put(r, self.keys.state(r), state)
+            if batch:
+                states.append(state)
+            else:
+                self._put(r, self.keys.state(r), state)
             if done is not None:
                 self._put(r, self.keys.done(r), done)
+        if states:
+            self._states_seq += 1
+            self.transport.put(self.states_key, encode(StateBatch(
+                tick=tick.k, states=[(s.robot, s.cell, s.status, s.plan_id, s.error) for s in states],
+                seq=self._states_seq)))
 
     def _ask_world(self, k: int, steps: dict[int, Step]) -> dict[int, MoveResult]:
         """One MoveRequest for a lone robot; one MoveBatch for a pool: a query costs far more than its size."""

@@ -565,7 +565,7 @@ class Mission:
             plan = self.plan
             k = self.tick = self.tick + 1
             self.transport.put(self.keys.tick, encode(Tick(k=k, ticks=plan.end_tick, plan_id=plan.plan_id,
-                                                           seq=self._next())))
+                                                           batch_states=True, seq=self._next())))
             faults = self.fleet.wait_tick(plan.ids, k, self.cfg.tick_timeout_s,
                                           interrupt=lambda: self.watch.fault is not None)
             self._check_vehicle()

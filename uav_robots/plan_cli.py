@@ -140,7 +140,7 @@ def add_bench_parser(subparsers) -> argparse.ArgumentParser:
     from .bench import PAPER_SIZES
     p = subparsers.add_parser("bench", help="benchmarks: the paper's Table 2 and MovingAI instances",
                               description="Run the planning benchmarks; writes a markdown table and CSV files.")
-    sub = p.add_subparsers(dest="bench", metavar="{paper,movingai,command,secure,perception}", required=True)
+    sub = p.add_subparsers(dest="bench", metavar="{paper,movingai,command,secure,perception,ticks}", required=True)
 
     def common(q: argparse.ArgumentParser, limit: float) -> None:
         q.add_argument("--time-limit", type=_positive_float, default=limit,
@@ -194,6 +194,10 @@ def add_bench_parser(subparsers) -> argparse.ArgumentParser:
     from .bench_perception import add_parser as add_perception
     add_perception(sub)
     sub.choices["perception"].set_defaults(func=cmd_bench)
+
+    from .bench_ticks import add_parser as add_ticks
+    add_ticks(sub)
+    sub.choices["ticks"].set_defaults(func=cmd_bench)
     return p
 
 
@@ -206,6 +210,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
         if args.bench == "perception":
             from . import bench_perception
             return bench_perception.run(args)
+        if args.bench == "ticks":
+            from . import bench_ticks
+            return bench_ticks.run(args)
         return bench.run_paper(args) if args.bench == "paper" else bench.run_movingai(args)
     except UavRobotsError as exc:
         return _fail(exc)

@@ -21,7 +21,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from protocol.messages import CameraFrame, VehiclePose, decode
+from protocol.messages import CameraFrame, StateBatch, VehiclePose, decode, encode
 from protocol.schemas import SCHEMA_DIR
 
 from .observer import Sample
@@ -145,6 +145,15 @@ def write_mcap(path: Path, samples: Iterable[Sample], fleet_prefix: str, rows: l
                 put("/uav/camera", "foxglove.CompressedImage", s.time_ns, image)
                 if not fed:
                     put("/uav/pose", "foxglove.PoseInFrame", s.time_ns, pose)
+                continue
+            if s.key.startswith(fleet_prefix + "/robots/") and s.key.endswith("/states"):
+                try:
+                    batch = decode(s.payload, StateBatch)
+                except Exception:  # noqa: BLE001 - a recorder keeps what it can read
+                    continue
+                # A pool's batch is recorded as the RobotStates it stands for: a replay reads one kind.
+                for st in batch.robot_states():
+                    put("/fleet/state", "RobotState", s.time_ns, encode(st))
                 continue
             topic = _topic(fleet_prefix, s.key)
             if topic is not None:

@@ -70,6 +70,10 @@ class FleetView:
             if kind == "state":
                 self.robots[body["robot"]] = (*body["cell"], body.get("status", ""))
                 self.tick = max(self.tick, body["tick"])
+            elif kind == "states":   # a pool's StateBatch
+                for rid, cell, status, *_ in body["states"]:
+                    self.robots[rid] = (*cell, status)
+                self.tick = max(self.tick, body["tick"])
             elif kind == "plan":
                 rid = body["robot"]
                 self.goals[rid] = body["goal"]
