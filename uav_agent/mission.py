@@ -326,27 +326,30 @@ class Mission:
         except MissionError as exc:   # an autopilot without DO_CHANGE_SPEED flies its cruise speed
             self.progress.phase("survey", f"keeping the vehicle's cruise speed: {exc}")
         self.clock.lap("takeoff")
-        # The images are perceived while the vehicle flies on: the first one alone, to measure the
-        # camera's blur before the rest of the survey is committed to this height.
+        # The images are perceived while the vehicle flies on. The first one also measures the
+        # camera's blur: if the survey's height is too high to read markers through it, the
+        # poses still ahead are dropped for a lower survey.
         self.survey_fusion = self._fusion()
-        shots = self._shots(self.survey_fusion)
+        verdict: dict[str, Any] = {}
+
+        def perceive(frame: CameraFrame) -> None:   # on the images' thread
+            if not verdict:
+                verdict["lower"] = self._sharp_enough(frame, first)
+            self.survey_fusion.add(frame)
+
+        shots = self._shots(self.survey_fusion, perceive)
         try:
             for i, (north, east, alt) in enumerate(poses):
+                if verdict.get("lower") is not None:
+                    break
                 self._status("survey", message=f"image {i + 1}/{len(poses)} from {alt:.1f} m")
                 self.flight.goto(north, east, alt)
                 self._track_altitude()
-                if i > 0:
-                    shots.shoot((north, east, alt))
-                    continue
-                frame = self._capture()
-                self.survey_fusion.add(frame)
-                lower = self._sharp_enough(frame, first)
-                if lower is not None:
-                    poses = self._poses = lower
-                    break
-            else:
-                lower = None
+                shots.shoot((north, east, alt))
+            shots.drain(first=1)
+            lower = verdict.get("lower")
             if lower is not None:   # the first image was too blurred for the planned height: the lower survey
+                poses = self._poses = lower
                 for i, (north, east, alt) in enumerate(poses):
                     self._status("survey", message=f"image {i + 1}/{len(poses)} from {alt:.1f} m "
                                                     "(lower: blurred camera)")

@@ -65,13 +65,15 @@ class Shots:
         with self._cv:
             return self._handled >= self._asked
 
-    def drain(self) -> list[CameraFrame]:
-        """Every image so far, perceived; MissionError if one never came or did not decode."""
+    def drain(self, first: int | None = None) -> list[CameraFrame]:
+        """Every image so far (or the `first` so many), perceived; MissionError if one never came
+        or did not decode."""
         with self._cv:
+            want = self._asked if first is None else min(first, self._asked)
             # Each image has its own query timeout, and perceiving one takes a second at most.
-            limit = (self._asked - self._handled) * (self._timeout_s + 5.0) + 5.0
-            if not self._cv.wait_for(lambda: self._handled >= self._asked, timeout=limit):
-                raise MissionError(f"{self._asked - self._handled} image(s) neither arrived nor were perceived "
+            limit = (want - self._handled) * (self._timeout_s + 5.0) + 5.0
+            if not self._cv.wait_for(lambda: self._handled >= want, timeout=limit):
+                raise MissionError(f"{want - self._handled} image(s) neither arrived nor were perceived "
                                    f"within {limit:g} s")
             if self._error is not None:
                 raise MissionError(self._error)
