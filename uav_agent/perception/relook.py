@@ -1,10 +1,12 @@
 """Closer looks: the fewest hover points that see a set of cells from a given altitude.
 
 Cells are binned into tiles of the footprint the camera has at that altitude
-(less a margin, so each cell lies whole inside the image), and each non-empty
-tile gets one hover over the centre of its cells; the tiles are visited
-nearest-first from where the vehicle is. One look per cell, as before, cost a
-flight per unreadable marker.
+(less a margin, so each cell lies whole inside the image, and less what a tilt
+of the body-fixed camera swings the footprint by), and each non-empty tile gets
+one hover over the centre of its cells; the tiles are visited nearest-first
+from where the vehicle is. One look per cell, as before, cost a flight per
+unreadable marker. Every doubtful cell gets a tile: when that takes more than
+`max_hovers`, the look rises (a wider footprint) before it drops cells.
 """
 from __future__ import annotations
 
@@ -16,13 +18,20 @@ import numpy as np
 from protocol.grid import Cell
 
 MARGIN = 0.8     # of the footprint: the rest is the overlap that keeps cells whole
+MAX_HOVERS = 24  # per round of closer looks: past it, the look rises rather than fly on
+RISE = 1.25      # altitude step when the cells need more hovers than that
+MIN_ALT_M = 3.0
+ROUNDS = 3       # of closer looks: the survey's gaps, then the markers they showed too small, then the rest
 
 
 def hover_points(cells: Iterable[Cell], cell_size_m: float, alt_m: float, width_px: int, height_px: int,
-                 fx: float, fy: float, start_ne: tuple[float, float] = (0.0, 0.0)) -> list[tuple[float, float]]:
-    """(north, east) hover points over `cells` for a nadir camera at `alt_m`, in visiting order."""
-    span_e = max(cell_size_m, MARGIN * width_px / fx * alt_m - 2 * cell_size_m)
-    span_n = max(cell_size_m, MARGIN * height_px / fy * alt_m - 2 * cell_size_m)
+                 fx: float, fy: float, start_ne: tuple[float, float] = (0.0, 0.0),
+                 tilt_rad: float = 0.0) -> list[tuple[float, float]]:
+    """(north, east) hover points over `cells` for a nadir camera at `alt_m`, in visiting order;
+    `tilt_rad`: the roll or pitch the camera may have at the shutter (either way, either axis)."""
+    swing = 2 * alt_m * math.tan(abs(tilt_rad))
+    span_e = max(cell_size_m, MARGIN * width_px / fx * alt_m - swing - 2 * cell_size_m)
+    span_n = max(cell_size_m, MARGIN * height_px / fy * alt_m - swing - 2 * cell_size_m)
     tiles: dict[tuple[int, int], list[Cell]] = {}
     for x, y in cells:
         east, south = (x + 0.5) * cell_size_m, (y + 0.5) * cell_size_m
@@ -41,12 +50,55 @@ def hover_points(cells: Iterable[Cell], cell_size_m: float, alt_m: float, width_
     return ordered
 
 
+def closer_look(cells: Collection[Cell], cell_size_m: float, alt_m: float, max_alt_m: float, camera,
+                start_ne: tuple[float, float] = (0.0, 0.0), tilt_rad: float = 0.0,
+                max_hovers: int = MAX_HOVERS) -> tuple[float, list[tuple[float, float]]]:
+    """(altitude, hover points) that see every one of `cells`: from `alt_m`, rising in steps up
+    to `max_alt_m` while that takes more than `max_hovers`; at `max_alt_m` the nearest
+    `max_hovers` only (the next round sees the rest). `camera`: width, height, fx, fy."""
+    alt = alt_m
+    while True:
+        points = hover_points(cells, cell_size_m, alt, camera.width, camera.height, camera.fx, camera.fy,
+                              start_ne, tilt_rad)
+        if len(points) <= max_hovers or alt >= max_alt_m:
+            return alt, points[:max_hovers]
+        alt = min(max_alt_m, alt * RISE)
+
+
+def plan_round(model, known: Collection[int] | None, for_map: bool, attempt: int, survey_alt_m: float,
+               cell_size_m: float, camera, landmarks=None, start_ne: tuple[float, float] = (0.0, 0.0),
+               tilt_rad: float = 0.0) -> tuple[list[Cell], list[tuple[float, float, float]]]:
+    """Round `attempt` (1, 2, ...) of closer looks at what `model` leaves in doubt: (the cells,
+    the hovers (north, east, altitude)); no cells, no hovers. Cells no image saw only need
+    seeing: they are looked at from the survey's height, as the rest of the floor was. The
+    others need detail: each round halves the survey's altitude for them, but stays high
+    enough to keep landmarks in view to register by."""
+    targets = doubts(model, known, for_map)
+    if not targets:
+        return [], []
+    unseen = {c for c in targets if not model.seen[c[1], c[0]]}
+    detail = [c for c in targets if c not in unseen]
+    hovers: list[tuple[float, float, float]] = []
+    here = start_ne
+    if detail:
+        keep = landmarks.view_alt_m(camera.width / camera.fx) if landmarks is not None else 0.0
+        alt = min(survey_alt_m, max(MIN_ALT_M, keep, survey_alt_m / 2.0 ** attempt))
+        alt, points = closer_look(detail, cell_size_m, alt, survey_alt_m, camera, here, tilt_rad)
+        hovers += [(n, e, alt) for n, e in points]
+        here = points[-1] if points else here
+    if unseen:
+        alt, points = closer_look(sorted(unseen), cell_size_m, survey_alt_m, survey_alt_m, camera, here, tilt_rad)
+        hovers += [(n, e, alt) for n, e in points]
+    return targets, hovers
+
+
 def doubts(model, known: Collection[int] | None, for_map: bool = True) -> list[Cell]:
     """The cells a closer look should see: unreadable markers (while a known robot is missing),
-    and, when the map matters, unsure cells and, if fewer goals than robots were seen, the
-    robots (one may stand on a goal and hide most of it)."""
+    and, when the map matters, unsure cells, cells no image saw, every unreadable marker (the
+    model takes its cell for floor under a robot: a shelf edge's contrast would open a wall),
+    and, if fewer goals than robots were seen, the robots (one may stand on a goal and hide most of it)."""
     missing = set(known or ()) - set(model.robots)
-    targets = set(model.unidentified) if missing or known is None else set()
+    targets = set(model.unidentified) if missing or known is None or for_map else set()
     if for_map:
         targets |= set(model.unsure)
         ys, xs = np.nonzero(~model.seen)           # beyond every image's edge (a lens, a tilt)
