@@ -276,6 +276,7 @@ class Mission:
             self._status("survey", message=f"image {i + 1}/{len(poses)} from {alt:.1f} m")
             self.flight.goto(north, east, alt)
             self._track_altitude()
+            self._hold_level()
             frame = self._capture()
             if i == 0:
                 lower = self._sharp_enough(frame, first)
@@ -289,6 +290,7 @@ class Mission:
                 self._status("survey", message=f"image {i + 1}/{len(poses)} from {alt:.1f} m (lower: blurred camera)")
                 self.flight.goto(north, east, alt)
                 self._track_altitude()
+                self._hold_level()
                 self._capture()
         # Hover over the floor's centre while the robots move: the leader keeps them in view.
         c = self.info.cell_size_m
@@ -410,6 +412,7 @@ class Mission:
         frames = []
         for north, east, alt in self._poses:
             self.flight.goto(north, east, alt)
+            self._hold_level()
             frames.append(self._capture())
         self.flight.goto(*self._hover_ned)
         model = self._see(frames, set(self.ids), for_map=False)
