@@ -375,7 +375,7 @@ class Mission:
             here = self.flight.position_ned()
             targets, hovers = plan_round(model, known, for_map, attempt, self._survey_alt, self.info.cell_size_m,
                                          self._camera, self.landmarks, (here[0], here[1]),
-                                         math.radians(LEVEL_TILT_DEG))
+                                         math.radians(LEVEL_TILT_DEG), len(self._poses))
             if not targets:
                 break
             heights = sorted({round(alt, 1) for _, _, alt in hovers})

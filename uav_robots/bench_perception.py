@@ -127,7 +127,8 @@ def simulate(scene: Scene, model: CameraModel, seed: int = 0, survey_tilt_deg: f
     wm = timed(perceive, frames, w, h, CELL, known_ids=known, landmarks=marks)
     here = poses[-1][:2]
     for attempt in range(1, ROUNDS + 1):
-        cells, hovers = plan_round(wm, known, True, attempt, survey_alt, CELL, model, marks, here)
+        cells, hovers = plan_round(wm, known, True, attempt, survey_alt, CELL, model, marks, here,
+                                   survey_images=len(poses))
         if not cells:
             break
         for n, e, alt in hovers:
