@@ -75,3 +75,15 @@ def test_a_survey_taken_leaning_20_degrees_is_completed_by_level_closer_looks():
     assert wm.unseen == 0 and wm.unsure == []
     assert score(wm, scene) == (0, 0, 0)
     assert images > 1                        # the survey's one image left ~400 cells unseen: looks filled them
+
+
+def test_a_closer_look_slides_to_keep_two_landmarks_in_view_and_its_cells_inside():
+    # At 8 m the view is 16 x 12 m; centred on the cell it holds no landmark; two lie 10-12 m east.
+    anchors = np.array([[12.0, -60.5], [13.0, -57.0], [40.0, -10.0]])     # (east, north)
+    cell = (1, 59)
+    (n0, e0), = hover_points([cell], 1.0, 8.0, 1280, 960, 640.0, 640.0)
+    (n, e), = hover_points([cell], 1.0, 8.0, 1280, 960, 640.0, 640.0, anchors_en=anchors)
+    assert (n0, e0) == (-59.5, 1.5) and e > e0
+    assert _inside_tilted(cell, (n, e), 8.0 * 0.8, 0.0)              # whole inside, within the margin
+    view_e, view_n = 8.0 - 1.0, 6.0 - 1.0
+    assert sum(abs(ae - e) <= view_e and abs(an - n) <= view_n for ae, an in anchors) == 2
