@@ -87,3 +87,15 @@ def test_a_closer_look_slides_to_keep_two_landmarks_in_view_and_its_cells_inside
     assert _inside_tilted(cell, (n, e), 8.0 * 0.8, 0.0)              # whole inside, within the margin
     view_e, view_n = 8.0 - 1.0, 6.0 - 1.0
     assert sum(abs(ae - e) <= view_e and abs(an - n) <= view_n for ae, an in anchors) == 2
+
+
+def test_while_a_robot_is_missing_lone_shelf_cells_get_a_closer_look():
+    free = np.ones((10, 10), bool)
+    free[4, 4] = False                        # alone in the floor: a blurred robot reads like this
+    free[0:3, 7:10] = False                   # a shelf block ...
+    free[3, 8] = False                        # ... with a one-cell bump: a robot in the aisle beside it
+    model = SimpleNamespace(seen=np.ones((10, 10), bool), free=free, unsure=[], unidentified=[],
+                            robots={1: (1, 1)}, goals=[(2, 2), (3, 3)])
+    targets, _ = plan_round(model, {1, 2}, True, 1, 20.0, 1.0, CAMERA)
+    assert targets == [(4, 4), (8, 3)]
+    assert plan_round(model, {1}, True, 1, 20.0, 1.0, CAMERA) == ([], [])

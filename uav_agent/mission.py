@@ -32,7 +32,7 @@ from .watch import VehicleWatch
 
 QUERY_TIMEOUT_S = 10.0
 ABORT_LAND_TIMEOUT_S = 60.0
-LEVEL_TILT_DEG = 1.0       # a closer look's shutter waits for the body (and the fixed camera) this level ...
+LEVEL_TILT_DEG = 1.0       # a shutter (survey, fresh look, closer look) waits for the body, and its camera, this level ...
 LEVEL_WAIT_S = 3.0         # ... for at most this long: a vehicle that has just braked hangs at its tilt limit
 PLAN_RESEND_S = 2.0        # a plan not acknowledged within this is put again
 SURVEY_BORDER = 0.06       # of the image's short side, with a lens: its undistorted corners are empty

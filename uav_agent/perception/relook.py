@@ -135,9 +135,13 @@ def doubts(model, known: Collection[int] | None, for_map: bool = True) -> list[C
     """The cells a closer look should see: unreadable markers (while a known robot is missing),
     and, when the map matters, unsure cells, cells no image saw, every unreadable marker (the
     model takes its cell for floor under a robot: a shelf edge's contrast would open a wall),
-    and, if fewer goals than robots were seen, the robots (one may stand on a goal and hide most of it)."""
+    and, if fewer goals than robots were seen, the robots (one may stand on a goal and hide most of it).
+    While a known robot is missing, shelf cells standing (nearly) alone in the floor too: a
+    marker too blurred to show its contrast reads as a dark cell."""
     missing = set(known or ()) - set(model.robots)
     targets = set(model.unidentified) if missing or known is None or for_map else set()
+    if missing:
+        targets |= lone_shelves(model)
     if for_map:
         targets |= set(model.unsure)
         ys, xs = np.nonzero(~model.seen)           # beyond every image's edge (a lens, a tilt)
@@ -145,3 +149,14 @@ def doubts(model, known: Collection[int] | None, for_map: bool = True) -> list[C
         if len(model.goals) < len(model.robots):
             targets |= set(model.robots.values())
     return sorted(targets)
+
+
+def lone_shelves(model) -> set[Cell]:
+    """Seen cells read as shelf with at least three of their four neighbours (on the grid) read
+    as floor: alone, or a one-cell bump on a shelf's side (a robot in the aisle beside it)."""
+    free, seen = model.free, model.seen
+    pad = np.pad(free, 1, constant_values=True).astype(np.int8)
+    floor_around = pad[:-2, 1:-1] + pad[2:, 1:-1] + pad[1:-1, :-2] + pad[1:-1, 2:]
+    alone = seen & ~free & (floor_around >= 3)
+    ys, xs = np.nonzero(alone)
+    return {(int(x), int(y)) for x, y in zip(xs, ys)}
