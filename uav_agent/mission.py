@@ -33,9 +33,8 @@ from .watch import VehicleWatch
 QUERY_TIMEOUT_S = 10.0
 CAMERA_TIMEOUT_S = 30.0    # a 12 MP image rendered on a loaded machine, or sent over a slow link
 ABORT_LAND_TIMEOUT_S = 60.0
-RELOOK_ROUNDS = 2          # closer looks at unreadable markers, unsure cells, robots that may hide a goal
-RELOOK_MAX_CELLS = 200
-RELOOK_MIN_ALT_M = 3.0
+LEVEL_TILT_DEG = 1.0       # a shutter (survey, fresh look, closer look) waits for the body, and its camera, this level ...
+LEVEL_WAIT_S = 3.0         # ... for at most this long: a vehicle that has just braked hangs at its tilt limit
 STARTUP_LONGEST = 4         # robots still coming up extend the start-up wait, to this many times it
 PLAN_RESEND_S = 2.0        # a plan not acknowledged within this is put again
 SURVEY_BORDER = 0.06       # of the image's short side, with a lens: its undistorted corners are empty
@@ -197,6 +196,7 @@ class Mission:
         try:
             for north, east, alt in poses:
                 self.flight.goto(north, east, alt)
+                self._hold_level()
                 shots.shoot((north, east, alt))
             shots.drain()
         finally:
@@ -207,6 +207,7 @@ class Mission:
         """Take again, holding still until each arrives, the images the vehicle flew away from."""
         for north, east, alt in shots.missed:
             self.flight.goto(north, east, alt)
+            self._hold_level()
             fusion.add(self._capture())
         if shots.missed:
             self.uav["retaken_images"] = self.uav.get("retaken_images", 0) + len(shots.missed)
@@ -345,6 +346,7 @@ class Mission:
                 self._status("survey", message=f"image {i + 1}/{len(poses)} from {alt:.1f} m")
                 self.flight.goto(north, east, alt)
                 self._track_altitude()
+                self._hold_level()
                 shots.shoot((north, east, alt))
             shots.drain(first=1)
             lower = verdict.get("lower")
@@ -355,6 +357,7 @@ class Mission:
                                                     "(lower: blurred camera)")
                     self.flight.goto(north, east, alt)
                     self._track_altitude()
+                    self._hold_level()
                     shots.shoot((north, east, alt))
             # Hover over the floor's centre while the robots move: the leader keeps them in view.
             c = self.info.cell_size_m
@@ -427,33 +430,46 @@ class Mission:
         return model
 
     def _see(self, fusion, for_map: bool = True):
-        """Perceive `frames`; what they leave in doubt gets a closer look from lower down: markers
-        whose id did not decode, unsure cells (before they are taken for obstacles), and, when
-        fewer goals than robots were seen, the robots (one may stand on a goal and hide most of it)."""
-        from .perception.relook import doubts, hover_points
+        """The model of what `fusion` holds; what it leaves in doubt gets closer looks: markers
+        whose id did not decode, unsure cells (before they are taken for obstacles), cells no image
+        saw, and, when fewer goals than robots were seen, the robots (one may stand on a goal and
+        hide most of it). Every doubtful cell is planned for; the hovers per round are capped."""
+        import math
+
+        from .perception.relook import ROUNDS, plan_round
 
         known = fusion.known_ids
         model = fusion.model()
-        for attempt in range(1, RELOOK_ROUNDS + 1):
-            targets = doubts(model, known, for_map)
+        for attempt in range(1, ROUNDS + 1):
+            here = self.flight.position_ned()
+            targets, hovers = plan_round(model, known, for_map, attempt, self._survey_alt, self.info.cell_size_m,
+                                         self._camera, self.landmarks, (here[0], here[1]),
+                                         math.radians(LEVEL_TILT_DEG), len(self._poses))
             if not targets:
                 break
-            cells = targets[:RELOOK_MAX_CELLS]
-            c = self.info.cell_size_m
-            # Lower for detail, but high enough to keep landmarks in view to register by.
-            keep = self.landmarks.view_alt_m(self._camera.width / self._camera.fx) if self.landmarks else 0.0
-            alt = min(self._survey_alt, max(RELOOK_MIN_ALT_M, keep, self._survey_alt / 2.0 ** attempt))
-            here = self.flight.position_ned()
-            points = hover_points(cells, c, alt, self._camera.width, self._camera.height, self._camera.fx,
-                                  self._camera.fy, (here[0], here[1]))
-            self.progress.phase("perceive", f"{len(cells)} cell(s) in doubt ({len(model.unidentified)} unreadable "
-                                            f"markers, {len(model.unsure)} unsure, {len(model.robots)} robots / "
-                                            f"{len(model.goals)} goals): a closer look from {len(points)} hover(s) at "
-                                            f"{alt:.1f} m (round {attempt})")
-            self._tour([(north, east, alt) for north, east in points], fusion)
+            heights = sorted({round(alt, 1) for _, _, alt in hovers})
+            self.progress.phase("perceive", f"{len(targets)} cell(s) in doubt ({model.unseen} unseen, "
+                                            f"{len(model.unidentified)} unreadable markers, {len(model.unsure)} "
+                                            f"unsure, {len(model.robots)} robots / {len(model.goals)} goals): a "
+                                            f"closer look from {len(hovers)} hover(s) at {heights} m (round {attempt})")
+            self._tour(hovers, fusion)
             model = fusion.model()
             self.flight.goto(*self._hover_ned)
         return model
+
+    def _hold_level(self) -> None:
+        """Wait, briefly, for the airframe to level out: a camera fixed to the body sees the floor
+        through its tilt, and a vehicle that has just stopped still leans by up to its tilt limit
+        (20 degrees swings an image's footprint by a third of the altitude)."""
+        import math
+
+        deadline = time.monotonic() + LEVEL_WAIT_S
+        limit = math.radians(LEVEL_TILT_DEG)
+        while time.monotonic() < deadline:
+            roll, pitch, _ = self.flight.attitude_rad()
+            if max(abs(roll), abs(pitch)) <= limit:
+                return
+            time.sleep(0.02)
 
     def _look(self, cells: list[Cell] | None = None, back: bool = True) -> dict[int, Cell]:
         """A fresh look from the survey poses, at the whole floor or only at the poses that

@@ -1,0 +1,101 @@
+"""Closer looks cover every doubtful cell: the survey's gaps (a body-fixed camera leaning as
+the vehicle brakes), unreadable markers and unsure cells, with a capped number of hovers.
+
+The geometry tests are pure; the mission test renders real images through
+sim_world.camera and reads them through OpenCV, as bench perception does.
+"""
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+
+from uav_agent.perception.relook import MAX_HOVERS, closer_look, hover_points, plan_round
+from uav_robots.bench_perception import bench_scene, score, simulate
+from sim_world.camera import PRESETS, CameraModel
+
+CAMERA = SimpleNamespace(width=1280, height=960, fx=640.0, fy=640.0)
+
+
+def _inside_tilted(cell, hover, alt, tilt_rad, camera=CAMERA) -> bool:
+    """Cell wholly inside the image of a camera at `hover` leaning `tilt_rad` in the worst direction."""
+    n, e = hover
+    swing = alt * math.tan(tilt_rad)
+    half_e = camera.width / camera.fx * alt / 2 - swing
+    half_n = camera.height / camera.fy * alt / 2 - swing
+    x, y = cell
+    return abs(x + 0.5 - e) + 0.5 <= half_e and abs(-(y + 0.5) - n) + 0.5 <= half_n
+
+
+def test_hover_points_keep_cells_in_view_through_the_stated_tilt():
+    cells = [(x, y) for x in range(0, 120, 3) for y in range(0, 90, 4)]
+    tilt = math.radians(10.0)
+    points = hover_points(cells, 1.0, 30.0, 1280, 960, 640.0, 640.0, tilt_rad=tilt)
+    level = hover_points(cells, 1.0, 30.0, 1280, 960, 640.0, 640.0)
+    assert len(points) > len(level)          # the swing costs footprint
+    for c in cells:
+        assert any(_inside_tilted(c, p, 30.0, tilt) for p in points), c
+
+
+def test_a_closer_look_rises_rather_than_exceed_its_hovers_and_never_drops_a_cell_it_can_avoid():
+    cells = [(x, y) for x in range(0, 300, 5) for y in range(0, 300, 5)]
+    alt, points = closer_look(cells, 1.0, 10.0, 60.0, CAMERA)
+    assert alt > 10.0 and len(points) <= MAX_HOVERS
+    for c in cells:
+        assert any(_inside_tilted(c, p, alt, 0.0) for p in points), c
+    # Capped at the survey's height: the nearest hovers now, the rest in a later round.
+    alt, points = closer_look(cells, 1.0, 10.0, 12.0, CAMERA, max_hovers=5)
+    assert alt == 12.0 and len(points) == 5
+
+
+def test_unseen_cells_are_seen_from_the_survey_height_unreadable_markers_from_lower():
+    h, w = 100, 100
+    seen = np.ones((h, w), bool)
+    seen[40:60, :] = False                   # a strip between two leaning images
+    model = SimpleNamespace(seen=seen, unsure=[], unidentified=[(5, 5)], robots={1: (5, 5)}, goals=[(9, 9)])
+    targets, hovers = plan_round(model, {1}, True, 1, 40.0, 1.0, CAMERA)
+    assert (5, 5) in targets and (0, 40) in targets and len(targets) == 1 + 20 * w
+    assert {alt for _, _, alt in hovers} == {20.0, 40.0}
+    low = [(n, e) for n, e, alt in hovers if alt == 20.0]
+    assert len(low) == 1 and _inside_tilted((5, 5), low[0], 20.0, 0.0)
+    for x in range(w):
+        for y in range(40, 60):
+            assert any(_inside_tilted((x, y), (n, e), alt, 0.0) for n, e, alt in hovers if alt == 40.0)
+    done = SimpleNamespace(seen=np.ones((h, w), bool), unsure=[], unidentified=[], robots={1: (5, 5)}, goals=[(9, 9)])
+    assert plan_round(done, {1}, True, 1, 40.0, 1.0, CAMERA) == ([], [])
+
+
+def test_a_survey_taken_leaning_20_degrees_is_completed_by_level_closer_looks():
+    """The 450 mission's failure in small: every survey image leans by the vehicle's tilt
+    limit, footprints swing by a third of the altitude, cells between them go unseen."""
+    model = CameraModel(**PRESETS["realistic"])
+    scene = bench_scene("random:width=40,height=40,density=0.2", 6, model)
+    wm, images, _ = simulate(scene, model, survey_tilt_deg=20.0)
+    assert wm.unseen == 0 and wm.unsure == []
+    assert score(wm, scene) == (0, 0, 0)
+    assert images > 1                        # the survey's one image left ~400 cells unseen: looks filled them
+
+
+def test_a_closer_look_slides_to_keep_two_landmarks_in_view_and_its_cells_inside():
+    # At 8 m the view is 16 x 12 m; centred on the cell it holds no landmark; two lie 10-12 m east.
+    anchors = np.array([[12.0, -60.5], [13.0, -57.0], [40.0, -10.0]])     # (east, north)
+    cell = (1, 59)
+    (n0, e0), = hover_points([cell], 1.0, 8.0, 1280, 960, 640.0, 640.0)
+    (n, e), = hover_points([cell], 1.0, 8.0, 1280, 960, 640.0, 640.0, anchors_en=anchors)
+    assert (n0, e0) == (-59.5, 1.5) and e > e0
+    assert _inside_tilted(cell, (n, e), 8.0 * 0.8, 0.0)              # whole inside, within the margin
+    view_e, view_n = 8.0 - 1.0, 6.0 - 1.0
+    assert sum(abs(ae - e) <= view_e and abs(an - n) <= view_n for ae, an in anchors) == 2
+
+
+def test_while_a_robot_is_missing_lone_shelf_cells_get_a_closer_look():
+    free = np.ones((10, 10), bool)
+    free[4, 4] = False                        # alone in the floor: a blurred robot reads like this
+    free[0:3, 7:10] = False                   # a shelf block ...
+    free[3, 8] = False                        # ... with a one-cell bump: a robot in the aisle beside it
+    model = SimpleNamespace(seen=np.ones((10, 10), bool), free=free, unsure=[], unidentified=[],
+                            robots={1: (1, 1)}, goals=[(2, 2), (3, 3)])
+    targets, _ = plan_round(model, {1, 2}, True, 1, 20.0, 1.0, CAMERA)
+    assert targets == [(4, 4), (8, 3)]
+    assert plan_round(model, {1}, True, 1, 20.0, 1.0, CAMERA) == ([], [])
