@@ -159,6 +159,18 @@ def _browser():
     return playwright.sync_playwright()
 
 
+def _open(page, port: int, what: str, wait_s: float = 60.0):
+    """`page` showing the server on `port`, once it answers (the run starts it a little later)."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            page.goto(f"http://127.0.0.1:{port}/", timeout=5000)
+            return page
+        except Exception:
+            assert time.monotonic() < deadline, f"{what} never answered"
+            time.sleep(0.3)
+
+
 def _wait(page, expression, timeout_s):
     page.wait_for_function(expression, timeout=timeout_s * 1000)
 
@@ -174,15 +186,7 @@ def test_live_view_in_a_real_browser(tmp_path):
         with _browser() as pw:
             browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
             try:
-                page = browser.new_page(viewport={"width": 1300, "height": 950})
-                deadline = time.monotonic() + 60
-                while True:
-                    try:
-                        page.goto(f"http://127.0.0.1:{port}/", timeout=5000)
-                        break
-                    except Exception:
-                        assert time.monotonic() < deadline, "the view never answered"
-                        time.sleep(0.3)
+                page = _open(browser.new_page(viewport={"width": 1300, "height": 950}), port, "the view")
                 _wait(page, "window.viewState && window.viewState.tick >= 1", 120)
                 first = page.evaluate("JSON.stringify(window.viewState.robots)")
                 time.sleep(1.0)
@@ -227,15 +231,7 @@ def test_recorded_mission_in_the_view(recorded):
         with _browser() as pw:
             browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
             try:
-                page = browser.new_page()
-                deadline = time.monotonic() + 60
-                while True:
-                    try:
-                        page.goto(f"http://127.0.0.1:{port}/", timeout=5000)
-                        break
-                    except Exception:
-                        assert time.monotonic() < deadline, "the replay view never answered"
-                        time.sleep(0.3)
+                page = _open(browser.new_page(), port, "the replay view")
                 _wait(page, "window.viewState.updates > 0", 30)
                 start = page.evaluate("window.viewState.robots")
                 assert {r: c[:2] for r, c in start.items()} == {
