@@ -14,7 +14,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from protocol.errors import MissionError, PlanningError, ProtocolError
 from protocol.grid import Cell
@@ -29,6 +29,9 @@ from .pose_feed import PoseFeed
 from .preview import Previewer
 from .progress import Progress
 from .watch import VehicleWatch
+
+if TYPE_CHECKING:
+    from .shots import Shots
 
 QUERY_TIMEOUT_S = 10.0
 CAMERA_TIMEOUT_S = 30.0    # a 12 MP image rendered on a loaded machine, or sent over a slow link
