@@ -174,6 +174,9 @@ def test_paper_setting_450_with_50_robots(tmp_path):
     report = load_report(tmp_path)
     _check_report(report)
     assert (tmp_path / "report.json").stat().st_size <= 200_000, "report.json must stay readable"
+    # Robots arrive from tick 11 to 249: most arrivals are confirmed while the others still move.
+    assert report["verified_during_execution"], "no arrival was confirmed during execution"
+    assert set(report["verified_during_execution"]) <= {int(r) for r, ok in report["verified"].items() if ok}
     # The 450 floor's video replaces its GIF (a robot would be a pixel in it): one frame per tick.
     assert not (tmp_path / "replay.gif").exists() and (tmp_path / "report.html").exists()
     import cv2

@@ -176,33 +176,41 @@ class Flight:
         wait until within `tolerance_m` horizontally and vertically and nearly stopped.
         Returns the reached (north, east, down)."""
         _check_timeout(timeout_s)
+        deadline = time.monotonic() + timeout_s
+        self.go(north_m, east_m, alt_m, yaw_rad, tolerance_m)
+
+        def error() -> tuple[float, float]:
+            n, e, d = self.position_ned()
+            return math.hypot(n - north_m, e - east_m), abs(-d - alt_m)
+
+        self._wait(lambda: self.settled_at(north_m, east_m, alt_m, tolerance_m), deadline, lambda: (
+            f"vehicle did not reach N {north_m:.1f} E {east_m:.1f} at {alt_m:.1f} m within {timeout_s:g} s"
+            f" (still {error()[0]:.1f} m away horizontally, {error()[1]:.1f} m vertically)"))
+        return self.position_ned()
+
+    def go(self, north_m: float, east_m: float, alt_m: float, yaw_rad: float | None = 0.0,
+           tolerance_m: float = 0.5) -> None:
+        """Send the vehicle towards (north, east) at `alt_m` above home and return at once
+        (`settled_at` tells when it is there): for flying while something else goes on."""
         yaw_deg = math.nan if yaw_rad is None else math.degrees(yaw_rad)  # NaN: MAVLink's "keep current"
         if not all(math.isfinite(v) for v in (north_m, east_m, alt_m, tolerance_m)) or tolerance_m <= 0 or (
                 yaw_rad is not None and not math.isfinite(yaw_rad)):
             raise MissionError(f"goto target ({north_m}, {east_m}, {alt_m} m, yaw {yaw_rad}, tolerance {tolerance_m})"
                                " must be finite numbers with a positive tolerance")
-        deadline = time.monotonic() + timeout_s
         action, _ = self._link()
         home_lat, home_lon, home_alt = self._home
         lat, lon = ned_to_geo(north_m, east_m, home_lat, home_lon)
         self._act(f"go to N {north_m:.1f} E {east_m:.1f} at {alt_m:.1f} m",
                   lambda: action.goto_location(lat, lon, home_alt + alt_m, yaw_deg))
 
-        def error() -> tuple[float, float]:
-            n, e, d = self.position_ned()
-            return math.hypot(n - north_m, e - east_m), abs(-d - alt_m)
-
-        def there():
-            horizontal, vertical = error()
-            v = self._telemetry.velocity_ned()
-            # stopped, not just passing through: the camera should see a still pose
-            settled = math.hypot(v.north_m_s, v.east_m_s, v.down_m_s) <= SETTLED_M_S
-            return horizontal <= tolerance_m and vertical <= tolerance_m and settled
-
-        self._wait(there, deadline, lambda: (
-            f"vehicle did not reach N {north_m:.1f} E {east_m:.1f} at {alt_m:.1f} m within {timeout_s:g} s"
-            f" (still {error()[0]:.1f} m away horizontally, {error()[1]:.1f} m vertically)"))
-        return self.position_ned()
+    def settled_at(self, north_m: float, east_m: float, alt_m: float, tolerance_m: float = 0.5) -> bool:
+        """Within `tolerance_m` of the point horizontally and vertically, and stopped, not just
+        passing through: the camera should see a still pose."""
+        n, e, d = self.position_ned()
+        if math.hypot(n - north_m, e - east_m) > tolerance_m or abs(-d - alt_m) > tolerance_m:
+            return False
+        v = self._telemetry.velocity_ned()
+        return math.hypot(v.north_m_s, v.east_m_s, v.down_m_s) <= SETTLED_M_S
 
     def land(self, timeout_s: float = 120.0) -> None:
         """Land where it is; wait until on the ground and disarmed."""

@@ -44,6 +44,7 @@ SURVEY_BORDER = 0.06       # of the image's short side, with a lens: its undisto
 SURVEY_SPEED_M_S = 20.0    # asked of the autopilot for the flight between hover poses (capped by MPC_XY_VEL_MAX)
 MONITOR_FIRST = 25         # auto monitoring: the first image after this many ticks ...
 MONITOR_SHARE = 0.2        # ... then whenever the images so far cost at most this share of execution time
+MAX_GLANCES = 3            # monitoring images perceived at once, off the tick loop (each holds a full frame)
 
 
 @dataclass
@@ -101,6 +102,17 @@ DONE_WAIT_S = 5.0          # after the last tick: how long the Done flags may ta
 
 
 @dataclass
+class _Glance:
+    """A monitoring image, perceived off the tick loop, and what it shows once it is."""
+    plan_id: str
+    tick: int
+    shots: "Shots | None" = None
+    off: list[int] | None = None       # robots off their planned cell at `tick`; None until judged
+    on_goal: list[int] = field(default_factory=list)   # robots on their goals after their last move
+    took: float = 0.0                  # wall seconds from the request to the judgement
+
+
+@dataclass
 class PlanState:
     """The plan the fleet executes now: robot r is at paths[r][i] at tick start_tick + i."""
     plan_id: str
@@ -136,12 +148,15 @@ class Mission:
         self.tick = 0                           # the last tick sent
         self.replans = 0
         self.monitored = 0
-        self._monitor_job = None                # the monitoring image in flight (a Shots)
-        self._monitor_result = None             # (plan id, tick, robots off their plan, seconds of work)
+        self._glances: list[_Glance] = []       # monitoring images being perceived, oldest first
         self._monitor_work = 0.0                # wall seconds the monitoring images took, off the tick loop
         self.blocked: dict[int, Cell] = {}      # robots out of the plan (lost, stalled, faulty) -> their cell
         self.blocked_at: dict[int, float] = {}  # when each was taken out (a later sign of life brings it back)
         self.verified: dict[int, bool] = {}
+        self.confirmed: dict[int, str] = {}     # robot -> the plan under which an image after its last move showed it on its goal
+        self._stops: list = []                  # arrival_tour.Stop: poses still to shoot for arrivals ...
+        self._stop = None                       # ... and the one the vehicle flies to or holds at
+        self._fly_m_s = SURVEY_SPEED_M_S        # the vehicle's speed between poses, in wall time (measured by the survey)
         self._contradicted: set[int] = set()
         self.unserved: list[Cell] = []
         self.plan: PlanState | None = None
@@ -312,7 +327,7 @@ class Mission:
             pass
 
     def _fly_and_survey(self) -> None:
-        from .survey import survey_poses
+        from .survey import path_length, survey_poses
 
         self._status("takeoff", message=f"arming and climbing over MAVLink ({self.cfg.mavlink_url})")
         self.flight.arm()
@@ -335,6 +350,7 @@ class Mission:
         # poses still ahead are dropped for a lower survey.
         self.survey_fusion = self._fusion()
         verdict: dict[str, Any] = {}
+        t_survey = time.perf_counter()
 
         def perceive(frame: CameraFrame) -> None:   # on the images' thread
             if not verdict:
@@ -375,6 +391,8 @@ class Mission:
         finally:
             shots.close()
         self._retake(shots, self.survey_fusion)
+        took = time.perf_counter() - t_survey
+        self._fly_m_s = max(1.0, path_length(poses, poses[0][:2]) / took) if took > 0 else SURVEY_SPEED_M_S
         self.clock.lap("survey")
 
     def _sharp_enough(self, frame: CameraFrame, camera: CameraFrame):
@@ -537,6 +555,7 @@ class Mission:
                                           f"within {self.cfg.startup_timeout_s:g} s")
         self.plan = plan
         self.goal_of.update(plan.goals)
+        self._plan_stops(plan)
         pid = plan.plan_id
         acked = lambda r: self.fleet.acks.get(r) is not None and self.fleet.acks[r].plan_id == pid  # noqa: E731
         deadline = time.monotonic() + self.cfg.startup_timeout_s
@@ -577,7 +596,7 @@ class Mission:
         self._status("executing", tick=0, ticks=self.plan.end_tick, robots=len(self.ids), message="")
         self.progress.phase("execute", f"{self.plan.end_tick} ticks, {len(self.ids)} robots in lockstep")
         period = 1.0 / self.cfg.tick_rate_hz if self.cfg.tick_rate_hz > 0 else 0.0
-        self._exec_t0 = time.perf_counter()
+        self._exec_t0, self._exec_k0 = time.perf_counter(), self.tick
         next_at = time.monotonic()
         while self.tick < self.plan.end_tick:
             self._check_vehicle()
@@ -600,8 +619,8 @@ class Mission:
                 off = self._monitor_seen()
                 if off:
                     faults = {"deviation": off}
-                elif self._monitor_job is None and self._monitor_due(k):
-                    self._monitor(k)
+                else:
+                    self._look_between(k)
             if not faults:
                 back = self._rejoining()
                 if back:
@@ -615,9 +634,61 @@ class Mission:
                 self.transport.put(self.keys.mission_status, encode(MissionStatus(
                     phase="executing", tick=k, ticks=self.plan.end_tick, done=done, robots=len(self.ids),
                     seq=self._next())))
-        self._monitor_stop()
+        self._last_looks()
         self.ticks = self.tick
         self.clock.lap("execute")
+
+    def _plan_stops(self, plan: PlanState) -> None:
+        """Where to confirm the arrivals of `plan` while it runs. A confirmation under an earlier
+        plan stands for a robot the new one leaves on its goal."""
+        from .arrival_tour import arrival_ticks, stops
+
+        self.confirmed = {r: plan.plan_id for r in self.confirmed if r in plan.paths
+                          and {tuple(c) for c in plan.paths[r]} == {tuple(plan.goals[r])}}
+        todo = {r: tuple(plan.goals[r]) for r in plan.ids if r not in self.confirmed}
+        self._stops = stops(self._poses, todo, arrival_ticks(plan.paths, plan.start_tick),
+                            self.info.cell_size_m) if todo else []
+        self._stop = None
+
+    def _look_between(self, k: int) -> None:
+        """Between tick k and the next: the image due now, if any (an arrival stop reached once its
+        robots have made their last moves; monitoring while the vehicle holds still), and where
+        the vehicle flies next. Nothing is shot from a moving vehicle, and the vehicle flies on
+        as soon as the shutter has opened."""
+        from .arrival_tour import next_stop
+
+        stop = self._stop
+        if stop is not None and not self._still_at(stop.pose):
+            return
+        if stop is not None and k >= stop.ready_tick and len(self._glances) < MAX_GLANCES:
+            self._monitor(k, stop)
+            self._stops.remove(stop)
+            stop = self._stop = None
+        elif not self._glances and self._monitor_due(k):
+            self._monitor(k)
+        if stop is None and self._stops:
+            ran = time.perf_counter() - self._exec_t0
+            tick_s = ran / (k - self._exec_k0) if k - self._exec_k0 >= 10 else 0.05
+            here = self.flight.position_ned()
+            stop = self._stop = next_stop(self._stops, (here[0], here[1]), k, tick_s, self._fly_m_s)
+            self.flight.go(*stop.pose)
+
+    def _still_at(self, pose) -> bool:
+        import math
+
+        roll, pitch, _ = self.flight.attitude_rad()
+        return max(abs(roll), abs(pitch)) <= math.radians(LEVEL_TILT_DEG) and self.flight.settled_at(*pose)
+
+    def _last_looks(self) -> None:
+        """The images that end execution: those still being perceived, then the arrival stop the
+        vehicle holds at. A deviation they show, the verification's look sees too."""
+        self._monitor_seen(wait=True)
+        stop = self._stop
+        if stop is not None and self.tick >= stop.ready_tick and self._still_at(stop.pose):
+            self._monitor(self.tick, stop)
+            self._stops.remove(stop)
+            self._stop = None
+            self._monitor_seen(wait=True)
 
     def _monitor_due(self, k: int) -> bool:
         every = self.cfg.monitor_every
@@ -633,47 +704,57 @@ class Mission:
         running = time.perf_counter() - self._exec_t0
         return (spent + last) <= MONITOR_SHARE * running
 
-    def _monitor(self, k: int) -> None:
-        """Take one image from where the UAV hovers while the fleet holds after tick k, and go on:
-        the fleet holds only until the shutter has opened; the image is perceived meanwhile and
-        `_monitor_seen` reports the robots it shows off their planned cell at tick k. Robots
-        outside the image are not checked until the next full look."""
+    def _monitor(self, k: int, stop=None) -> None:
+        """Take one image from where the UAV holds (at `stop`, if one) while the fleet holds after
+        tick k, and go on: the fleet holds only until the shutter has opened; the image is
+        perceived meanwhile, and `_monitor_seen` reports the robots it shows off their planned cell
+        at tick k and confirms those it shows on their goals after their last move. Robots outside
+        the image are not checked until the next full look."""
+        from .arrival_tour import arrival_ticks
+
         t = time.perf_counter()
         plan, fusion = self.plan, self._fusion(set(self.plan.ids))
+        arrived = {r for r, tick in arrival_ticks(plan.paths, plan.start_tick).items() if tick <= k}
+        glance = _Glance(plan.plan_id, k)
 
         def judge(frame: CameraFrame) -> None:   # on the images' thread
             fusion.add(frame)
             model = fusion.model()
-            off = sorted(r for r, c in model.robots.items() if r in plan.paths and tuple(c) != plan.cell(r, k))
-            self._monitor_result = (plan.plan_id, k, off, time.perf_counter() - t)
+            glance.on_goal = [r for r, c in model.robots.items() if r in arrived and tuple(c) == tuple(plan.goals[r])]
+            glance.took = time.perf_counter() - t
+            glance.off = sorted(r for r, c in model.robots.items() if r in plan.paths and tuple(c) != plan.cell(r, k))
 
-        self._monitor_result = None
-        self._monitor_job = self._shots(fusion, judge)
-        self._monitor_job.shoot()
+        glance.shots = self._shots(fusion, judge)
+        self._glances.append(glance)
+        glance.shots.shoot(None if stop is None else stop.pose)
         self.clock.timings["monitor"] = round(self.clock.timings.get("monitor", 0.0) + time.perf_counter() - t, 4)
         self.monitored += 1
 
-    def _monitor_seen(self) -> list[int]:
-        """The robots the last monitoring image, once perceived, shows off their plan (if the plan
-        it was judged against is still the one flown)."""
-        job = self._monitor_job
-        if job is None or not job.done():
-            return []
-        self._monitor_stop()
-        plan_id, k, off, took = self._monitor_result
-        self._monitor_work += took
-        if plan_id != self.plan.plan_id or not off:
-            return []
-        self._event("camera-deviation", off, f"seen off its planned cell after tick {k}")
-        return off
-
-    def _monitor_stop(self) -> None:
-        job, self._monitor_job = self._monitor_job, None
-        if job is not None:
+    def _monitor_seen(self, wait: bool = False) -> list[int]:
+        """The robots the monitoring images perceived since the last call (all of them, if `wait`)
+        show off the plan they were judged against, if it is still the one flown; the arrivals
+        they show are confirmed, and the stops left with nothing to confirm dropped."""
+        off: set[int] = set()
+        while self._glances and (wait or self._glances[0].shots.done()):
+            g = self._glances.pop(0)
             try:
-                job.drain()
+                g.shots.drain()
             finally:
-                job.close()
+                g.shots.close()
+            if g.off is None:   # the image missed its pose: no judgement
+                continue
+            self._monitor_work += g.took
+            if g.plan_id != self.plan.plan_id:
+                continue
+            self.confirmed.update((r, g.plan_id) for r in g.on_goal)
+            if g.off:
+                self._event("camera-deviation", g.off, f"seen off its planned cell after tick {g.tick}")
+                off.update(g.off)
+        pid = self.plan.plan_id
+        self._stops = [s for s in self._stops if not all(self.confirmed.get(r) == pid for r in s.robots)]
+        if self._stop not in self._stops:
+            self._stop = None
+        return sorted(off)
 
     def _done_for(self, robot: int, plan: PlanState) -> bool:
         d = self.fleet.done.get(robot)
@@ -769,9 +850,16 @@ class Mission:
             claimed = {r for r in self.ids if r in self.fleet.done}
         self._status("verify", message=f"a fresh look at {len(plan.ids)} robots' goals")
         goals = {r: self.goal_of.get(r) for r in self.ids}
-        # Only the goals matter: a robot anywhere else is not on its goal, seen or not.
+        # Only the goals matter: a robot anywhere else is not on its goal, seen or not. Arrivals
+        # an image confirmed during execution need no second look.
         # The vehicle lands where the look ends, unless a repair follows (then it flies back anyway).
-        seen = self.seen_at_end = self._look([tuple(g) for g in goals.values() if g is not None], back=False)
+        confirmed = {r for r in plan.ids if self.confirmed.get(r) == plan.plan_id}
+        cells = [tuple(g) for r, g in goals.items() if g is not None and r not in confirmed]
+        self.progress.phase("verify", f"{len(confirmed)} arrival(s) seen during execution; a look at "
+                                      f"{len(cells)} more goal(s)")
+        seen = self._look(cells, back=False) if cells else {}
+        seen.update((r, tuple(goals[r])) for r in confirmed)
+        self.seen_at_end = seen
         for r in self.ids:
             g = goals[r]
             self.verified[r] = g is not None and seen.get(r) == tuple(g)
@@ -873,6 +961,8 @@ class Mission:
             "robots": len(ids),
             "done": sorted(self.fleet.done) if hasattr(self, "fleet") else [],
             "verified": {str(r): self.verified.get(r, False) for r in ids},
+            "verified_during_execution": sorted(r for r, pid in self.confirmed.items()
+                                                if self.plan is not None and pid == self.plan.plan_id),
             "lost": sorted(self.blocked),
             "unserved_goals": [list(g) for g in self.unserved],
             "replans": self.replans,
