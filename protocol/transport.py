@@ -71,7 +71,10 @@ class Transport(ABC):
     def put(self, key: str, payload: bytes) -> None: ...
 
     @abstractmethod
-    def subscribe(self, key: str, callback: Callback) -> Handle: ...
+    def subscribe(self, key: str, callback: Callback, inline: bool = False) -> Handle:
+        """Call `callback(key, payload)` for each sample on `key`. An `inline` callback runs on
+        the transport's receiving thread, saving a thread switch per sample (the lockstep's hot
+        path); it must return at once and must not wait on the transport."""
 
     @abstractmethod
     def serve(self, key: str, handler: Callable[[IncomingQuery], None], inline: bool = False) -> Handle:
@@ -161,6 +164,7 @@ class ZenohTransport(Transport):
             raise MissionError(f"{name}: cannot open zenoh session: {str(exc).splitlines()[0]}") from None
         self.where = "zenoh"      # how the session was opened, for log lines (see open_session)
         self._pubs: dict[str, Any] = {}
+        self._queriers: dict[tuple[str, float], Any] = {}
         self._lock = threading.Lock()
         self._handles: list[Handle] = []
 
@@ -176,9 +180,10 @@ class ZenohTransport(Transport):
     def put(self, key: str, payload: bytes) -> None:
         self._publisher(key).put(payload)
 
-    def subscribe(self, key: str, callback: Callback) -> Handle:
+    def subscribe(self, key: str, callback: Callback, inline: bool = False) -> Handle:
         cb = _guard(callback, f"subscriber {key}")
-        sub = self.session.declare_subscriber(key, lambda s: cb(str(s.key_expr), s.payload.to_bytes()))
+        sub = self.session.declare_subscriber(key, self._z.handlers.Callback(
+            lambda s: cb(str(s.key_expr), s.payload.to_bytes()), indirect=not inline))
         return self._keep(Handle(sub.undeclare, sub))
 
     def serve(self, key: str, handler: Callable[[IncomingQuery], None], inline: bool = False) -> Handle:
@@ -190,7 +195,12 @@ class ZenohTransport(Transport):
         return self._keep(Handle(qbl.undeclare, qbl))
 
     def request_start(self, key: str, payload: bytes, timeout: float) -> PendingRequest:
-        return _ZenohPending(self.session.get(key, payload=payload, timeout=timeout))
+        # A declared querier per key: a session-level get costs a quarter of a lockstep robot's tick.
+        with self._lock:
+            querier = self._queriers.get((key, timeout))
+            if querier is None:
+                querier = self._queriers[(key, timeout)] = self.session.declare_querier(key, timeout=timeout)
+        return _ZenohPending(querier.get(payload=payload))
 
     def announce(self, key: str) -> Handle:
         tok = self.session.liveliness().declare_token(key)
@@ -286,7 +296,7 @@ class MemoryTransport(Transport):
                     lst.remove(item)
         return Handle(close, item)
 
-    def subscribe(self, key: str, callback: Callback) -> Handle:
+    def subscribe(self, key: str, callback: Callback, inline: bool = False) -> Handle:
         return self._add(self.bus.subs, (key, _guard(callback, f"subscriber {key}")))
 
     def serve(self, key: str, handler: Callable[[IncomingQuery], None], inline: bool = False) -> Handle:

@@ -77,7 +77,7 @@ class RobotPool(Lifecycle):
         else:
             # One wildcard subscription, not one per robot: Zenoh's Python binding runs a thread per callback.
             self.keep(self.transport.subscribe(f"{k.prefix}/robot/*/plan", self._on_any_plan))
-        self.keep(self.transport.subscribe(k.tick, lambda _k, p: self._work.put(("tick", p))),
+        self.keep(self.transport.subscribe(k.tick, lambda _k, p: self._work.put(("tick", p)), inline=True),
                   self.transport.subscribe(k.mission_end, self._on_end),
                   self.transport.watch_alive(k.alive_uav, self._on_uav))
         self._worker.start()

@@ -322,8 +322,8 @@ class World(Lifecycle):
             # camera query is answered, so the shutter must have opened by then.
             t.serve(k.world_info, self._on_info, inline=True),
             t.serve(k.camera, self._on_camera, inline=True),
-            t.serve(k.move, self._on_move),
-            t.serve(k.moves_by_identity, self._on_move),
+            t.serve(k.move, self._on_move, inline=True),
+            t.serve(k.moves_by_identity, self._on_move, inline=True),
             t.serve(k.record, self._on_record),
             t.subscribe(k.mission_end, self._on_mission_end),
             t.watch_alive(k.alive_uav, self._on_uav),

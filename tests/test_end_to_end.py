@@ -185,3 +185,18 @@ def test_paper_setting_450_with_50_robots(tmp_path):
     assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == report["ticks"] + 1
     assert (tmp_path / "mission.mcap").stat().st_size > 0
     print(f"450x450 / 50 robots wall time {wall:.1f} s, timings {report['timings']}")
+
+
+@pytest.mark.slow
+def test_a_thousand_robots_on_the_450_floor(tmp_path):
+    """The issue's fleet size end to end: pooled robot processes, every plan executed as
+    validated, the floor perceived as it is, every robot verified, no collision."""
+    t0 = time.monotonic()
+    res = _run(["run", "--map", "warehouse-450", "--robots", "1000", "--out", str(tmp_path)], timeout=600)
+    wall = time.monotonic() - t0
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    report = load_report(tmp_path)
+    _check_report(report)
+    assert report["robots"] == 1000 and all(report["verified"].values())
+    assert 1 < len(report["processes"]["robots"]) < 1000, "a fleet this size runs in pools"
+    print(f"450x450 / 1000 robots wall time {wall:.1f} s, timings {report['timings']}")

@@ -36,9 +36,9 @@ class FleetLink:
         self._warn = Throttled("uav")
         self._handles = [
             transport.subscribe(keys.all_acks, self._on_ack),
-            transport.subscribe(keys.all_states, self._on_state),
-            transport.subscribe(keys.all_state_batches, self._on_state_batch),
-            transport.subscribe(keys.all_done, self._on_done),
+            transport.subscribe(keys.all_states, self._on_state, inline=True),
+            transport.subscribe(keys.all_state_batches, self._on_state_batch, inline=True),
+            transport.subscribe(keys.all_done, self._on_done, inline=True),
             transport.watch_alive(keys.alive_robots, self._on_robot_alive),
             transport.watch_alive(keys.alive_world, self._on_world_alive),
         ]
