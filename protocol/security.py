@@ -1,7 +1,8 @@
 """Zenoh configs for a fleet that trusts no stranger: mutual TLS and access control (pure functions).
 
 Every process holds a certificate from the fleet's own CA; its common name is its
-identity: `uav`, `world`, `robot-<id>` for a lone robot, `robots-<ids>` for a pool.
+identity: `uav`, `world`, `robot-<id>` for a lone robot, `robots-<ids>` for a pool, and
+`observer` for a recorder that may only listen.
 The UAV is the router, so its config carries the access control: default deny,
 and each identity may send (ingress) and receive (egress) only what its role
 needs (docs/protocol.md, *Security*). The UAV's own messages are local to the
@@ -15,7 +16,7 @@ from typing import Any, Sequence
 from .config import LEASE_MS, client_dict, hub_dict
 from .keys import Keys, format_ids
 
-UAV, WORLD = "uav", "world"
+UAV, WORLD, OBSERVER = "uav", "world", "observer"
 
 
 @dataclass(frozen=True)
@@ -55,6 +56,12 @@ def _rule(rid: str, messages: list[str], flow: str, keys: list[str]) -> dict[str
 def _grants(k: Keys, who: Identity) -> list[tuple[list[str], str, list[str]]]:
     """(messages, flow, key expressions) an identity is allowed; ingress is what it sends to the router."""
     alive_uav = [k.alive_uav]
+    if who.name == OBSERVER:
+        # Reads every put of the fleet (the recording, the live view); sends nothing.
+        return [
+            (["declare_subscriber"], "ingress", [f"{k.prefix}/**"]),
+            (["put"], "egress", [f"{k.prefix}/**"]),
+        ]
     if who.name == WORLD:
         return [
             (["declare_queryable", "reply"], "ingress", [f"{k.prefix}/world/**"]),

@@ -82,7 +82,7 @@ def test_init_writes_private_keys_and_configs_zenoh_accepts(tmp_path):
     assert r.returncode == 0, r.stderr
     fleet = read_fleet_dir(out)
     # 70 robots are hosted as 4 pools, one identity each
-    assert [w.name for w in fleet.identities()] == ["uav", "world", "robots-0-17", "robots-18-35",
+    assert [w.name for w in fleet.identities()] == ["uav", "world", "observer", "robots-0-17", "robots-18-35",
                                                      "robots-36-53", "robots-54-69"]
     for w in fleet.identities():
         assert stat.S_IMODE((out / f"{w.name}.key").stat().st_mode) == 0o600
@@ -146,6 +146,31 @@ def test_a_robot_reaches_only_its_own_keys(fleet_dir):
         assert [(key, decode(p, Tick).k if key == k.tick else None) for key, p in at_hub.items] == [
             (k.state(0), None), (k.tick, 1)]
         assert [decode(p, Tick).k for key, p in at_r1.items] == [1]
+
+
+def test_the_observer_hears_everything_and_can_say_nothing(fleet_dir):
+    d, _ = fleet_dir
+    k = Keys("sec")
+    with _open_hub(d) as hub, _open(d, "robot-0") as r0, _open(d, "observer") as obs:
+        at_obs, at_hub, at_r0 = Inbox(), Inbox(), Inbox()
+        obs.subscribe(f"{k.prefix}/**", at_obs)
+        for key in (k.all_states, k.tick, k.mission_end):
+            hub.subscribe(key, at_hub)
+        r0.subscribe(k.tick, at_r0)
+        assert _alive(r0, k.alive_uav)
+        time.sleep(0.5)   # the observer's subscription reaches the router
+        obs.put(k.tick, encode(Tick(k=100_000, ticks=100_000, plan_id="p")))
+        obs.put(k.state(0), encode(RobotState(robot=0, tick=1, cell=(0, 0), plan_id="p", status="error")))
+        obs.put(k.mission_end, encode(MissionEnd(completed=True)))
+        hub.put(k.tick, encode(Tick(k=1, ticks=3, plan_id="p")))
+        r0.put(k.state(0), encode(RobotState(robot=0, tick=1, cell=(0, 0), plan_id="p", status="stepping")))
+        assert at_obs.wait_for(lambda key, p: key == k.state(0)) and at_obs.wait_for(lambda key, p: key == k.tick)
+        assert at_r0.wait_for(lambda key, p: key == k.tick)
+        time.sleep(0.5)
+        # nothing the observer put reached anyone: the only tick is the hub's, the only state robot 0's
+        assert [decode(p, Tick).k for key, p in at_r0.items] == [1]
+        assert [(key, decode(p, RobotState).status if key == k.state(0) else None) for key, p in at_hub.items
+                if key != k.tick] == [(k.state(0), "stepping")]
 
 
 def test_only_the_world_answers_world_queries(fleet_dir):
@@ -220,6 +245,8 @@ def test_a_secure_mission_completes_while_a_member_forges_everything(tmp_path):
     assert summary["completed"] and summary["collisions"] == 0
     assert seen_uav.is_set() and sent[0] > 10   # the attacker was in the fleet, and sent all along
     assert "BEGIN" not in stdout and "PRIVATE KEY" not in json.dumps(summary)
+    # The recorder listens with its own identity: the whole mission is in the recording.
+    assert "no recording" not in stderr and (out / "mission.mcap").stat().st_size > 10_000
 
 
 def test_run_secure_uses_a_secure_init_directory_and_cleans_a_temporary_one(tmp_path):

@@ -266,8 +266,15 @@ def start_observer(launcher: Launcher):
     """The recorder: a Zenoh client of the fleet, connected to the UAV's endpoint (the UAV listens)."""
     from .observer import Observer
 
+    config = None
+    if launcher.secure_dir is not None:   # the fleet's listen-only identity
+        config = launcher.configs.get("observer")
+        if config is None or not Path(config).is_file():
+            print("uav-robots: no recording: this --secure directory has no observer identity "
+                  "(make a new one with `uav-robots secure init`)", file=sys.stderr, flush=True)
+            return None
     try:
-        return Observer(launcher.endpoint, launcher.fleet)
+        return Observer(launcher.endpoint, launcher.fleet, config_file=config)
     except MissionError as exc:
         print(f"uav-robots: no recording: {exc}", file=sys.stderr, flush=True)
         return None

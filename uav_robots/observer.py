@@ -21,11 +21,12 @@ class Sample:
 
 
 class Observer:
-    def __init__(self, endpoint: str, fleet: str, wait_s: float = 20.0) -> None:
+    def __init__(self, endpoint: str, fleet: str, wait_s: float = 20.0, config_file: str | None = None) -> None:
         self.keys = Keys(fleet)
         self._lock = threading.Lock()
         self.samples: list[Sample] = []
-        self._transport: Transport | None = open_session("observer", connect=[endpoint], wait_s=wait_s)
+        self._transport: Transport | None = open_session("observer", connect=[endpoint], config_file=config_file,
+                                                         wait_s=wait_s)
         self._transport.subscribe(f"{self.keys.prefix}/**", self._on_sample)
 
     def _on_sample(self, key: str, payload: bytes) -> None:

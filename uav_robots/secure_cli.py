@@ -17,7 +17,7 @@ from typing import Any, Sequence
 from protocol.errors import UavRobotsError
 from protocol.keys import DEFAULT_FLEET, Keys
 from protocol.messages import MAX_ROBOTS
-from protocol.security import UAV, WORLD, Identity, TlsFiles, robot_identity, secure_client, secure_router
+from protocol.security import OBSERVER, UAV, WORLD, Identity, TlsFiles, robot_identity, secure_client, secure_router
 
 DEFAULT_PORT = 7447
 MANIFEST = "fleet.json"
@@ -39,7 +39,7 @@ class Fleet:
     files_at: str                    # the directory as the configs name it
 
     def identities(self) -> list[Identity]:
-        return [Identity(UAV), Identity(WORLD), *(robot_identity(g) for g in self.groups)]
+        return [Identity(UAV), Identity(WORLD), Identity(OBSERVER), *(robot_identity(g) for g in self.groups)]
 
     def config(self, name: str) -> Path:
         return Path(self.files_at) / f"{name}.json5"
@@ -87,7 +87,8 @@ def read_fleet_dir(path: Path) -> Fleet:
         raise UavRobotsError(f"--secure {path}: no {MANIFEST}: make the directory with `uav-robots secure init`") from None
     except (OSError, ValueError, TypeError) as exc:
         raise UavRobotsError(f"--secure {path}: unreadable {MANIFEST}: {exc}") from None
-    missing = [f"{w.name}.{ext}" for w in fleet.identities() for ext in ("pem", "key", "json5")
+    # A directory made before the observer had an identity runs without a recording.
+    missing = [f"{w.name}.{ext}" for w in fleet.identities() if w.name != OBSERVER for ext in ("pem", "key", "json5")
                if not (path / f"{w.name}.{ext}").is_file()]
     if missing:
         raise UavRobotsError(f"--secure {path}: missing {', '.join(missing[:3])}")
