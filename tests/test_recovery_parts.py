@@ -54,3 +54,22 @@ def test_bad_fault_specs_are_one_line(text):
     with pytest.raises(UavRobotsError, match="--fault") as e:
         parse_fault(text)
     assert "\n" not in str(e.value)
+
+
+def test_a_mode_the_mission_never_commands_is_a_vehicle_fault():
+    from types import SimpleNamespace
+
+    from uav_agent.watch import VehicleWatch
+
+    flight = SimpleNamespace(armed=True, in_air=True, flight_mode="HOLD")
+    watch = VehicleWatch(flight, lambda why: None, period_s=60)
+    try:
+        for mine in ("HOLD", "TAKEOFF"):
+            flight.flight_mode = mine
+            assert watch._check() is None
+        # a ground station starting its own mission, or a pilot taking the sticks, takes the vehicle
+        for theirs in ("MISSION", "POSCTL", "RETURN_TO_LAUNCH", "LAND", "OFFBOARD"):
+            flight.flight_mode = theirs
+            assert f"switched to {theirs} mode" in watch._check()
+    finally:
+        watch.close()

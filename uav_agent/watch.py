@@ -10,7 +10,9 @@ import threading
 from typing import Any, Callable
 
 # Modes the UAV never commands during a mission: someone else (a ground station, a failsafe) did.
-FOREIGN_MODES = {"LAND", "RETURN_TO_LAUNCH", "MANUAL", "STABILIZED", "ACRO", "ALTCTL"}
+# The mission flies in HOLD (position targets), TAKEOFF and LAND only after it commanded them.
+FOREIGN_MODES = {"LAND", "RETURN_TO_LAUNCH", "MANUAL", "STABILIZED", "ACRO", "ALTCTL", "POSCTL", "MISSION",
+                 "OFFBOARD", "FOLLOW_ME", "RATTITUDE"}
 
 
 class VehicleWatch:
