@@ -21,11 +21,11 @@ class Event:
 @dataclass
 class EventLog:
     events: list[Event] = field(default_factory=list)
-    _t0: float = field(default_factory=time.monotonic)
+    t0: float = field(default_factory=time.monotonic)   # time.monotonic() at the mission's start: events count from it
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     def add(self, tick: int, kind: str, robots: list[int] | tuple[int, ...], what: str, action: str = "") -> Event:
-        e = Event(tick, round(time.monotonic() - self._t0, 3), kind, tuple(sorted(robots)), what, action,
+        e = Event(tick, round(time.monotonic() - self.t0, 3), kind, tuple(sorted(robots)), what, action,
                   round(time.time(), 3))
         with self._lock:
             self.events.append(e)

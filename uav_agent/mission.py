@@ -272,7 +272,7 @@ class Mission:
             self.flight.connect(timeout_s=self.cfg.startup_timeout_s)
             self.watch = VehicleWatch(self.flight, self._vehicle_fault)
             self.pose_feed = PoseFeed(self.flight, lambda p: self.transport.put(self.keys.uav_pose, encode(p)),
-                                      t0=self.events._t0)
+                                      t0=self.events.t0)
             self.clock.lap("connect")
 
             self._fly_and_survey()
