@@ -165,14 +165,20 @@ def test_malformed_map_file(tmp_path):
     assert res.returncode == 2 and "3 rows, file has 1" in res.stderr and "Traceback" not in res.stderr
 
 
-@pytest.mark.slow
-def test_paper_setting_450_with_50_robots(tmp_path):
+def _mission_450(out, robots: int, timeout: float):
+    """The 450x450 warehouse with `robots`, as a user runs it: the checked report and the wall time."""
     t0 = time.monotonic()
-    res = _run(["run", "--map", "warehouse-450", "--robots", "50", "--out", str(tmp_path)], timeout=400)
+    res = _run(["run", "--map", "warehouse-450", "--robots", str(robots), "--out", str(out)], timeout=timeout)
     wall = time.monotonic() - t0
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
-    report = load_report(tmp_path)
+    report = load_report(out)
     _check_report(report)
+    return report, wall
+
+
+@pytest.mark.slow
+def test_paper_setting_450_with_50_robots(tmp_path):
+    report, wall = _mission_450(tmp_path, 50, timeout=400)
     assert (tmp_path / "report.json").stat().st_size <= 200_000, "report.json must stay readable"
     # Robots arrive from tick 11 to 249: most arrivals are confirmed while the others still move.
     assert report["verified_during_execution"], "no arrival was confirmed during execution"
@@ -191,12 +197,7 @@ def test_paper_setting_450_with_50_robots(tmp_path):
 def test_a_thousand_robots_on_the_450_floor(tmp_path):
     """The issue's fleet size end to end: pooled robot processes, every plan executed as
     validated, the floor perceived as it is, every robot verified, no collision."""
-    t0 = time.monotonic()
-    res = _run(["run", "--map", "warehouse-450", "--robots", "1000", "--out", str(tmp_path)], timeout=600)
-    wall = time.monotonic() - t0
-    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
-    report = load_report(tmp_path)
-    _check_report(report)
+    report, wall = _mission_450(tmp_path, 1000, timeout=600)
     assert report["robots"] == 1000 and all(report["verified"].values())
     assert 1 < len(report["processes"]["robots"]) < 1000, "a fleet this size runs in pools"
     print(f"450x450 / 1000 robots wall time {wall:.1f} s, timings {report['timings']}")
