@@ -68,6 +68,7 @@ class Launcher:
         self.logs = self.out / "logs"
         self.logs.mkdir(parents=True, exist_ok=True)
         self.groups = robot_groups(args.robots, args.robots_per_process)
+        self.compiler: subprocess.Popen | None = None   # the planners' kernels, on a fresh clone
         self.secure_dir: Path | None = None       # certificates and configs, with --secure
         self.secure_temporary = False
         if args.secure is not None:
@@ -116,8 +117,12 @@ class Launcher:
         return child
 
     def start(self) -> Child:
+        from uav_agent.planning import warm
+
         a = self.args
         common = ["--fleet", self.fleet]
+        # First, so that the compile overlaps every other process's start-up (the UAV waits for it).
+        self.compiler = warm.start(a.planner, a.connectivity)
         uav = self._spawn("uav", "uav_agent", [*common, *self.session_args("uav", hub=True), "--robots", str(a.robots),
                                   "--mavlink", f"udpin://127.0.0.1:{self.udp}", "--out", str(self.out),
                                   *(["--assign", a.assign] if a.assign else []),
@@ -185,6 +190,14 @@ class Launcher:
             if c.proc.poll() is None:
                 c.proc.kill()
                 c.proc.wait(timeout=5)
+        if self.compiler is not None and self.compiler.poll() is None:
+            # what it compiled so far is cached; the next run's goes on from there
+            self.compiler.terminate()
+            try:
+                self.compiler.wait(timeout=GRACE_S)
+            except subprocess.TimeoutExpired:
+                self.compiler.kill()
+                self.compiler.wait(timeout=5)
 
     def pids(self) -> dict:
         by = {c.name: c.proc.pid for c in self.children}
