@@ -23,6 +23,7 @@ import errno
 import fcntl
 import hashlib
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -133,6 +134,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--connectivity", type=int, choices=(4, 8), default=4)
     p.add_argument("--locked-fd", type=int, help="an inherited descriptor of the lock file, already locked")
     args = p.parse_args(argv)
+    # SIGTERM (the launcher stopping) unwinds, so that warm_up's `finally` stops its second compiler
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
 
     from .pipeline import warm_up
     from .registry import DEFAULT_PLANNER
