@@ -115,8 +115,7 @@ def test_one_compiler_at_a_time(tmp_path, monkeypatch):
         with warm.kernel_lock(wait=False) as mine:
             assert not mine
     finally:
-        compiler.terminate()
-        compiler.wait(timeout=10)
+        warm.stop(compiler)
     assert not warm.busy()
     with warm.kernel_lock(wait=False) as mine:
         assert mine

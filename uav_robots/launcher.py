@@ -190,20 +190,16 @@ class Launcher:
             if c.proc.poll() is None:
                 c.proc.kill()
                 c.proc.wait(timeout=5)
-        if self.compiler is not None and self.compiler.poll() is None:
-            # what it compiled so far is cached; the next run's goes on from there
-            self.compiler.terminate()
-            try:
-                self.compiler.wait(timeout=GRACE_S)
-            except subprocess.TimeoutExpired:
-                self.compiler.kill()
-                self.compiler.wait(timeout=5)
+        if self.compiler is not None:
+            from uav_agent.planning import warm
+
+            warm.stop(self.compiler)   # what it compiled so far is cached; the next run goes on from there
 
     def pids(self) -> dict:
         by = {c.name: c.proc.pid for c in self.children}
         return {"uav": by.get("uav"), "world": by.get("world"),
                 "robots": [c.proc.pid for c in self.children if c.name.startswith("robots-")],
-                "launcher": os.getpid()}
+                "launcher": os.getpid(), "compiler": self.compiler.pid if self.compiler is not None else None}
 
 
 def _number(name: str, value: float, lo: float, hi: float, lo_open: bool = False) -> None:

@@ -102,7 +102,8 @@ def busy() -> bool:
 def start(planner: str | None = None, connectivity: int = 4) -> subprocess.Popen | None:
     """On a cold cache with nobody compiling: a niced process that compiles the kernels, which
     holds the lock from before it starts (no window in which another process could take it);
-    otherwise None. The process dies with its parent; what it compiled by then stays cached."""
+    otherwise None. The process dies with its parent, or by `stop`; what it compiled by then
+    stays cached."""
     if is_warm():
         return None
     from protocol.process import die_with_parent
@@ -116,6 +117,7 @@ def start(planner: str | None = None, connectivity: int = 4) -> subprocess.Popen
 
         def child_setup() -> None:
             die_with_parent()
+            os.setpgid(0, 0)        # a group of its own with its helper compiler: `stop` ends both at once
             os.nice(NICE)
 
         # the lock belongs to the open file, which the child shares: it holds it until it exits
@@ -125,6 +127,17 @@ def start(planner: str | None = None, connectivity: int = 4) -> subprocess.Popen
                                 stderr=subprocess.DEVNULL, preexec_fn=child_setup)
     finally:
         os.close(fd)
+
+
+def stop(compiler: subprocess.Popen) -> None:
+    """Ends a compile `start` began, with its helper process: SIGKILL to the group, which numba's
+    cache survives (it writes each file under a temporary name, then renames it)."""
+    if compiler.poll() is None:
+        try:
+            os.killpg(compiler.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    compiler.wait()
 
 
 def main(argv: list[str] | None = None) -> int:
