@@ -116,13 +116,16 @@ class Launcher:
         self.children.append(child)
         return child
 
-    def start(self) -> Child:
+    def start(self, free) -> Child:
+        """Starts every process of the mission on the grid `free`; the UAV first of them."""
         from uav_agent.planning import warm
+        from uav_agent.planning.interpreted import fits
 
         a = self.args
         common = ["--fleet", self.fleet]
-        # First, so that the compile overlaps every other process's start-up (the UAV waits for it).
-        self.compiler = warm.start(a.planner, a.connectivity)
+        # First, so that the compile overlaps every other process's start-up; in the background
+        # when the UAV will not wait for it (a small instance is planned interpreted meanwhile).
+        self.compiler = warm.start(a.planner, a.connectivity, background=fits(free, a.robots, a.robots))
         uav = self._spawn("uav", "uav_agent", [*common, *self.session_args("uav", hub=True), "--robots", str(a.robots),
                                   "--mavlink", f"udpin://127.0.0.1:{self.udp}", "--out", str(self.out),
                                   *(["--assign", a.assign] if a.assign else []),
@@ -337,7 +340,7 @@ def _run(args, launcher: "Launcher", name: str, free) -> int:
     observer = None
     view = open_view(args, free)
     try:
-        uav = launcher.start()
+        uav = launcher.start(free)
         observer = start_observer(launcher)
         if view is not None and observer is not None:
             view.follow(observer)
