@@ -73,6 +73,23 @@ def test_default_mission(tmp_path):
     print(f"default mission wall time {time.monotonic() - t0:.1f} s")
 
 
+def test_first_run_does_not_wait_for_the_compile(tmp_path):
+    """A fresh clone (an empty numba cache): the kernels compile in a process of their own, the
+    default mission is planned by the same planners interpreted, and the compile stops with it."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")}
+    res = subprocess.run(CLI + ["run", "--out", str(tmp_path / "out")], capture_output=True, text=True,
+                         timeout=180, env=env)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    assert "planning this small instance with them interpreted" in res.stdout
+    report = load_report(tmp_path / "out")
+    _check_report(report)
+    procs = report["processes"]
+    assert procs["compiler"] is not None
+    assert _no_survivors([procs["compiler"], procs["uav"], procs["world"], *procs["robots"]]) == []
+    # as the compiled planners' plan of this mission (seed 0): every robot on a shortest path
+    assert report["plan"]["metrics"]["sum_of_costs"] == report["plan"]["metrics"]["lower_bound"]
+
+
 def test_json_and_quiet_for_scripts(tmp_path):
     res = _run(["run", "--json"], timeout=180)
     assert res.returncode == 0, res.stderr[-2000:]

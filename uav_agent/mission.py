@@ -266,6 +266,9 @@ class Mission:
             self.info = info
             from .perception import Landmarks
             self.landmarks = Landmarks.from_info(info)
+            from .planning.warm import is_warm
+            self._compiling = not is_warm()   # a fresh clone: the kernels compile during the flight
+            self._skip_warm = threading.Event()
             self._warm = threading.Thread(target=self._warm_up_planner, name="planner-warm-up", daemon=True)
             self._warm.start()
             self.flight = Flight(self.cfg.mavlink_url)
@@ -318,11 +321,25 @@ class Mission:
             self.progress.close()
 
     def _warm_up_planner(self) -> None:
+        from .planning import warm
         from .planning.pipeline import warm_up
         from .planning.registry import DEFAULT_PLANNER
 
         try:
-            warm_up(self.cfg.planner or DEFAULT_PLANNER, self.cfg.connectivity)
+            # A cold cache is compiled by a process of its own (the launcher's, else one started
+            # here): compiling on this thread would hold the GIL through the survey.
+            if self._compiling:
+                import numpy as np
+
+                from .planning.interpreted import fits
+
+                # the floor's cells bound its free cells: the plan will not wait when it fits
+                floor = np.ones((self.info.height, self.info.width), dtype=bool)
+                n = self.cfg.robots
+                warm.start(self.cfg.planner, self.cfg.connectivity, background=n is not None and fits(floor, n, n))
+            with warm.kernel_lock():
+                if not self._skip_warm.is_set():   # planned without them: loading now would only stall
+                    warm_up(self.cfg.planner or DEFAULT_PLANNER, self.cfg.connectivity)
         except Exception:  # noqa: BLE001 - the real plan call reports any problem properly
             pass
 
@@ -512,15 +529,20 @@ class Mission:
 
         ids = sorted(model.robots)
         planner = self.cfg.planner or DEFAULT_PLANNER
-        if self._warm.is_alive():
+        starts = [model.robots[i] for i in ids]
+        options = dict(planner=planner, assign=self.cfg.assign, connectivity=self.cfg.connectivity,
+                       time_limit=self.cfg.time_limit_s, fallback=self.cfg.fallback, seed=self.cfg.seed)
+        self._status("plan", message=f"{len(ids)} robots, planner {planner}, assignment {self.cfg.assign}")
+        result = None
+        if self._compiling and self._warm.is_alive():
+            result = self._plan_while_compiling(model, starts, options)
+        if result is None and self._warm.is_alive():
             self.progress.phase("plan", "compiling the planners (first run on this machine only, ~30 s; "
                                         "later runs load numba's cache)")
-        self._warm.join()
-        self._status("plan", message=f"{len(ids)} robots, planner {planner}, assignment {self.cfg.assign}")
         try:
-            result = plan_mission(model.free, [model.robots[i] for i in ids], list(model.goals), planner=planner,
-                                  assign=self.cfg.assign, connectivity=self.cfg.connectivity,
-                                  time_limit=self.cfg.time_limit_s, fallback=self.cfg.fallback, seed=self.cfg.seed)
+            if result is None:
+                self._warm.join()
+                result = plan_mission(model.free, starts, list(model.goals), **options)
         except PlanningError:
             from .perception.verdict import explain_unplannable
 
@@ -535,6 +557,25 @@ class Mission:
         self.model_free = model.free
         self.clock.lap("plan")
         return result
+
+    def _plan_while_compiling(self, model, starts, options):
+        """The plan of a small instance by the same planners interpreted, while their kernels
+        still compile (a fresh clone's first run); None when the instance is too large for that
+        or the interpreted run failed: the caller then waits for the kernels."""
+        from .planning.interpreted import fits, plan_interpreted
+
+        if not fits(model.free, len(starts), len(model.goals)):
+            return None
+        self.progress.phase("plan", "the planners' kernels are still compiling (first run on this machine "
+                                    "only): planning this small instance with them interpreted")
+        try:
+            result = plan_interpreted(model.free, starts, list(model.goals), **options)
+            self._skip_warm.set()
+            return result
+        except (PlanningError, RuntimeError) as exc:
+            self.progress.phase("plan", f"interpreted planning failed ({str(exc).splitlines()[0]}); "
+                                        "waiting for the compiled kernels")
+            return None
 
     def _dispatch(self, plan: PlanState, first: bool = False) -> list[int]:
         """Check the plan, send it, wait for the acknowledgements; returns the robots that failed to take it."""

@@ -68,6 +68,7 @@ class Launcher:
         self.logs = self.out / "logs"
         self.logs.mkdir(parents=True, exist_ok=True)
         self.groups = robot_groups(args.robots, args.robots_per_process)
+        self.compiler: subprocess.Popen | None = None   # the planners' kernels, on a fresh clone
         self.secure_dir: Path | None = None       # certificates and configs, with --secure
         self.secure_temporary = False
         if args.secure is not None:
@@ -115,9 +116,16 @@ class Launcher:
         self.children.append(child)
         return child
 
-    def start(self) -> Child:
+    def start(self, free) -> Child:
+        """Starts every process of the mission on the grid `free`; the UAV first of them."""
+        from uav_agent.planning import warm
+        from uav_agent.planning.interpreted import fits
+
         a = self.args
         common = ["--fleet", self.fleet]
+        # First, so that the compile overlaps every other process's start-up; in the background
+        # when the UAV will not wait for it (a small instance is planned interpreted meanwhile).
+        self.compiler = warm.start(a.planner, a.connectivity, background=fits(free, a.robots, a.robots))
         uav = self._spawn("uav", "uav_agent", [*common, *self.session_args("uav", hub=True), "--robots", str(a.robots),
                                   "--mavlink", f"udpin://127.0.0.1:{self.udp}", "--out", str(self.out),
                                   *(["--assign", a.assign] if a.assign else []),
@@ -185,12 +193,16 @@ class Launcher:
             if c.proc.poll() is None:
                 c.proc.kill()
                 c.proc.wait(timeout=5)
+        if self.compiler is not None:
+            from uav_agent.planning import warm
+
+            warm.stop(self.compiler)   # what it compiled so far is cached; the next run goes on from there
 
     def pids(self) -> dict:
         by = {c.name: c.proc.pid for c in self.children}
         return {"uav": by.get("uav"), "world": by.get("world"),
                 "robots": [c.proc.pid for c in self.children if c.name.startswith("robots-")],
-                "launcher": os.getpid()}
+                "launcher": os.getpid(), "compiler": self.compiler.pid if self.compiler is not None else None}
 
 
 def _number(name: str, value: float, lo: float, hi: float, lo_open: bool = False) -> None:
@@ -335,7 +347,7 @@ def _run(args, launcher: "Launcher", name: str, free) -> int:
     observer = None
     view = open_view(args, free)
     try:
-        uav = launcher.start()
+        uav = launcher.start(free)
         observer = start_observer(launcher)
         if view is not None and observer is not None:
             view.follow(observer)

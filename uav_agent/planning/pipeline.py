@@ -158,16 +158,12 @@ def plan_mission(free: np.ndarray, starts: list[Cell], goals: list[Cell], *,
 COMPILE_TIMEOUT_S = 900.0
 
 
-def _cold(module: str, function: str) -> bool:
-    """True when numba has no cache entry for `module.function` yet (a fresh clone)."""
-    return not any((FsPath(__file__).parent / "__pycache__").glob(f"{module}.{function}-*.nbi"))
-
-
 def warm_up(planner: str = DEFAULT_PLANNER, connectivity: int = 4) -> float:
     """Compile the planners' numba kernels (or load them from the on-disk cache) on tiny instances.
 
-    The UAV calls this on a background thread while it takes off, so the first
-    mission on a fresh machine does not pay the compile inside its plan phase.
+    `warm.py`'s process calls this to compile them on a fresh machine while the UAV takes
+    off, and the UAV on a background thread to load them from the cache, so that no
+    mission pays either inside its plan phase.
     Every fast kernel is loaded, whatever the planner: lacam is every other
     planner's fallback. On a cold cache a second process compiles LaCAM's search
     while this one compiles the prioritized planner: numba holds the GIL while it
@@ -176,10 +172,11 @@ def warm_up(planner: str = DEFAULT_PLANNER, connectivity: int = 4) -> float:
     from protocol.process import die_with_parent
 
     from .lacam import warm_up as warm_up_fast_planners
+    from .warm import cached
 
     t = time.perf_counter()
     aside = None
-    if _cold("lacam", "_search"):
+    if not cached("lacam", "_search"):
         code = "from uav_agent.planning.lacam import warm_up; warm_up(parts=('search', 'pibt'))"
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(
             filter(None, [str(FsPath(__file__).resolve().parents[2]), os.environ.get("PYTHONPATH")]))}

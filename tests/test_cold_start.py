@@ -1,0 +1,122 @@
+"""A fresh clone's first run: the kernels compile in a process of their own under a lock, and a
+small instance is planned meanwhile by the same planners interpreted."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from protocol.errors import PlanningError
+from scenarios.maps import NAMED, place, resolve_map, warehouse
+from uav_agent.planning import warm
+from uav_agent.planning.interpreted import fits, plan_interpreted
+from uav_agent.planning.pipeline import plan_mission
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def corridor():
+    """Head-on robots in a 1-wide corridor with one side pocket: too dense for the guide
+    paths, so LaCAM's search and PIBT plan it."""
+    free = np.zeros((2, 7), dtype=bool)
+    free[0, :] = True
+    free[1, 3] = True
+    return free, [(0, 0), (6, 0)], [(6, 0), (0, 0)]
+
+
+def instances():
+    out = []
+    for seed in (0, 1, 2):
+        free = warehouse(**NAMED["warehouse-small"])
+        pl = place(free, 8, seed)
+        out.append((f"warehouse-small-8-{seed}", free, pl.starts, pl.goals, 4, seed))
+    _, free = resolve_map("random:width=20,height=20,density=0.2", 5)
+    pl = place(free, 12, 5)
+    out.append(("random-20-12", free, pl.starts, pl.goals, 8, 5))
+    free, starts, goals = corridor()
+    out.append(("corridor", free, starts, goals, 4, 0))
+    return out
+
+
+@pytest.mark.parametrize("name,free,starts,goals,connectivity,seed", instances(), ids=lambda v: v if isinstance(v, str) else "")
+def test_interpreted_plans_are_the_compiled_plans(name, free, starts, goals, connectivity, seed):
+    kw = dict(planner="lacam", assign="optimal", connectivity=connectivity, time_limit=60.0, fallback=True, seed=seed)
+    compiled = plan_mission(free, starts, goals, **kw)
+    interpreted = plan_interpreted(free, starts, goals, **kw)
+    assert fits(free, len(starts), len(goals))
+    assert interpreted.paths == compiled.paths
+    assert interpreted.goals == compiled.goals and interpreted.assignment == compiled.assignment
+    assert interpreted.metrics == compiled.metrics and interpreted.planner == compiled.planner
+
+
+def test_interpreted_planning_error_is_one_line():
+    free = np.ones((3, 5), dtype=bool)
+    free[:, 2] = False       # the goal is behind a wall
+    kw = dict(planner="lacam", assign="none", connectivity=4, time_limit=10.0, fallback=True, seed=0)
+    with pytest.raises(PlanningError) as compiled:
+        plan_mission(free, [(0, 0)], [(4, 0)], **kw)
+    with pytest.raises(PlanningError) as interpreted:
+        plan_interpreted(free, [(0, 0)], [(4, 0)], **kw)
+    assert str(interpreted.value) == str(compiled.value) and "cannot reach" in str(compiled.value)
+
+
+def test_only_small_instances_are_interpreted():
+    small = warehouse(**NAMED["warehouse-small"])
+    assert fits(small, 8, 8)
+    _, big = resolve_map("warehouse-450", 0)
+    assert not fits(big, 3, 3)
+    assert not fits(small, 40, 40)
+
+
+def _numba_cache_path(cache_dir: str | None) -> str:
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    if cache_dir:
+        env["NUMBA_CACHE_DIR"] = cache_dir
+    code = "from uav_agent.planning.lacam import _search; print(_search._cache._cache_path)"
+    return subprocess.run([sys.executable, "-c", code], cwd=ROOT, env={**env, "PYTHONPATH": str(ROOT)},
+                          capture_output=True, text=True, check=True).stdout.strip()
+
+
+def test_cache_dir_is_where_numba_caches(tmp_path, monkeypatch):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    assert warm.cache_dir() == Path(_numba_cache_path(str(tmp_path)))
+    monkeypatch.delenv("NUMBA_CACHE_DIR")
+    assert warm.cache_dir() == Path(_numba_cache_path(None))
+
+
+def test_warm_needs_every_marker_newer_than_its_source(tmp_path, monkeypatch):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    d = warm.cache_dir()
+    assert not warm.is_warm()
+    d.mkdir(parents=True)
+    for module, function in warm.MARKERS:
+        (d / f"{module}.{function}-1.py311.nbi").write_bytes(b"")
+    assert warm.is_warm()
+    source = warm.PACKAGE_DIR / f"{warm.MARKERS[0][0]}.py"
+    stale = source.stat().st_mtime - 60
+    index = d / f"{warm.MARKERS[0][0]}.{warm.MARKERS[0][1]}-1.py311.nbi"
+    os.utime(index, (stale, stale))
+    assert not warm.cached(*warm.MARKERS[0]) and not warm.is_warm()
+
+
+def test_one_compiler_at_a_time(tmp_path, monkeypatch):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))   # a cold cache of the test's own
+    assert not warm.busy()
+    compiler = warm.start()
+    try:
+        assert compiler is not None
+        # the lock was taken before the child started, and the child holds it
+        assert warm.busy()
+        assert warm.start() is None
+        with warm.kernel_lock(wait=False) as mine:
+            assert not mine
+    finally:
+        warm.stop(compiler)
+    assert not warm.busy()
+    with warm.kernel_lock(wait=False) as mine:
+        assert mine
+        assert warm.start() is None      # held here: nobody else starts compiling

@@ -1,0 +1,96 @@
+"""The same planning pipeline with its numba kernels run by the Python interpreter, in a child process.
+
+On a fresh clone the kernels take tens of seconds to compile; a small instance (the
+default mission: 8 robots on 24x18) plans in well under a second when the very same
+code runs as plain Python. So while `warm.py`'s process compiles, a small instance is
+planned by `python -m uav_agent.planning.interpreted` with NUMBA_DISABLE_JIT=1 (numba's
+switch to call the decorated functions as they are written; it is read when numba is
+imported, hence a process of its own). Same functions, same seeds, same plans: only
+slower, which is why `fits` keeps it to small instances.
+
+The child reads the instance as JSON on stdin and writes the PlanResult as JSON on stdout;
+a planning error becomes exit 2 and its message on stderr.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import warnings
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from protocol.errors import PlanningError
+
+# Interpreted, one breadth-first visit of a cell costs a few microseconds and every goal
+# needs a full field: goals x free cells bounds the work (the default mission: 8 x 300).
+MAX_FIELD_CELLS = 20_000
+MAX_ROBOTS = 16
+START_MARGIN_S = 30.0      # the child's interpreter and imports, on a loaded machine
+
+
+def fits(free: np.ndarray, robots: int, goals: int) -> bool:
+    """True when interpreting the pipeline on this instance takes about a second at most."""
+    return robots <= MAX_ROBOTS and goals * int(np.count_nonzero(free)) <= MAX_FIELD_CELLS
+
+
+def _cells(cells) -> list[tuple[int, int]]:
+    return [(int(c[0]), int(c[1])) for c in cells]
+
+
+def plan_interpreted(free: np.ndarray, starts, goals, **options):
+    """`pipeline.plan_mission(free, starts, goals, **options)` in an interpreted child process.
+
+    Raises PlanningError as plan_mission would (no plan, or the time limit reached at the
+    interpreter's pace), and RuntimeError when the child could not start or crashed: either
+    way the caller can still plan with the compiled kernels."""
+    from .pipeline import PlanResult
+    from .validator import check
+    from .types import Problem
+
+    request = {"free": ["".join("1" if c else "0" for c in row) for row in np.asarray(free, dtype=bool)],
+               "starts": _cells(starts), "goals": _cells(goals), "options": options}
+    root = str(Path(os.path.abspath(__file__)).parents[2])
+    env = {**os.environ, "NUMBA_DISABLE_JIT": "1",
+           "PYTHONPATH": os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))}
+    timeout = float(options.get("time_limit", 60.0)) + START_MARGIN_S
+    try:
+        done = subprocess.run([sys.executable, "-m", "uav_agent.planning.interpreted"], input=json.dumps(request),
+                              capture_output=True, text=True, env=env, timeout=timeout)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise RuntimeError(f"the interpreted planner did not finish: {exc}") from None
+    if done.returncode == 2:
+        raise PlanningError(done.stderr.strip().splitlines()[-1] if done.stderr.strip() else "planning failed")
+    if done.returncode != 0:
+        raise RuntimeError(f"the interpreted planner exited with {done.returncode}: {done.stderr.strip()[-500:]}")
+    d = json.loads(done.stdout)
+    result = PlanResult(**{**d, "starts": _cells(d["starts"]), "goals": _cells(d["goals"]),
+                           "paths": [_cells(p) for p in d["paths"]]})
+    # the child validated its plan; a plan that crossed a process boundary is checked again
+    check(Problem(free=np.asarray(free, dtype=bool), starts=result.starts, goals=result.goals,
+                  connectivity=result.connectivity), result.paths)
+    return result
+
+
+def main() -> int:
+    from .pipeline import plan_mission
+
+    request = json.load(sys.stdin)
+    free = np.array([[c == "1" for c in row] for row in request["free"]], dtype=bool)
+    try:
+        # uint64 hashing and random generators wrap around by design, as they do compiled
+        with warnings.catch_warnings(), np.errstate(over="ignore"):
+            warnings.simplefilter("ignore", RuntimeWarning)
+            result = plan_mission(free, _cells(request["starts"]), _cells(request["goals"]), **request["options"])
+    except PlanningError as exc:
+        print(str(exc).replace("\n", " "), file=sys.stderr)
+        return 2
+    json.dump(asdict(result), sys.stdout)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
