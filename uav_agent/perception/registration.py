@@ -156,7 +156,7 @@ def homography(meta: CameraFrame, cell_size_m: float) -> np.ndarray:
 
 
 @lru_cache(maxsize=16)
-def _detector(family: str, perimeter_rate: float) -> cv2.aruco.ArucoDetector:
+def _parameters(perimeter_rate: float) -> cv2.aruco.DetectorParameters:
     params = cv2.aruco.DetectorParameters()
     # The altitude fixes a landmark's size in pixels: skipping candidates far off it
     # (shelf edges, robot markers) makes detection several times faster.
@@ -166,7 +166,42 @@ def _detector(family: str, perimeter_rate: float) -> cv2.aruco.ArucoDetector:
     # (each decode searches the whole dictionary: thousands of shelf squares cost seconds).
     params.minOtsuStdDev = MIN_CANDIDATE_STD
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
-    return cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, family)), params)
+    return params
+
+
+def _in_reach(landmarks: Landmarks, prior_inv: np.ndarray, image_size: tuple[int, int], gate_m: float,
+              cell_size_m: float) -> np.ndarray | None:
+    """Sorted ids of the landmarks a detection in this image could be matched to: an instance
+    within the gate of the floor the prior says the image covers. None: the prior sees the horizon."""
+    w, h = image_size
+    corners = np.array([[0, 0, 1], [w - 1, 0, 1], [0, h - 1, 1], [w - 1, h - 1, 1]], np.float64) @ prior_inv.T
+    if not np.all(corners[:, 2] > 0):
+        return None
+    uv = corners[:, :2] / corners[:, 2:3]
+    # Floor (east, north) metres of the footprint's bounding box, widened by the gate.
+    east = uv[:, 0] * cell_size_m
+    north = -uv[:, 1] * cell_size_m
+    lo, hi = np.array([east.min(), north.min()]) - gate_m, np.array([east.max(), north.max()]) + gate_m
+    return np.array(sorted(lid for lid, table in landmarks.by_id.items()
+                           if np.any(np.all((table >= lo) & (table <= hi), axis=1))), np.int64)
+
+
+def _detect(gray: np.ndarray, family: str, perimeter_rate: float, ids: np.ndarray | None
+            ) -> tuple[tuple[np.ndarray, ...], np.ndarray | None]:
+    """Landmark corners and ids in `gray`, decoded against only `ids` (None: the whole family).
+
+    Decoding searches the dictionary for every candidate square, and with a thousand codes
+    that search is most of the detector's time; the few codes that can be in view give the
+    same answers, since a code within the detector's correction of a read is the only one."""
+    full = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, family))
+    if ids is None:
+        return cv2.aruco.ArucoDetector(full, _parameters(perimeter_rate)).detectMarkers(gray)[:2]
+    ids = ids[(ids >= 0) & (ids < full.bytesList.shape[0])]
+    if ids.size == 0:
+        return (), None
+    subset = cv2.aruco.Dictionary(full.bytesList[ids], full.markerSize, full.maxCorrectionBits)
+    corners, found, _ = cv2.aruco.ArucoDetector(subset, _parameters(perimeter_rate)).detectMarkers(gray)
+    return corners, None if found is None else ids[found.ravel()].reshape(-1, 1)
 
 
 def _corners_floor(centre_en: np.ndarray, size_m: float, cell_size_m: float) -> np.ndarray:
@@ -193,15 +228,16 @@ def register(gray: np.ndarray, meta: CameraFrame, landmarks: Landmarks | None, c
         return Registration(prior, "estimate", notes=["no surveyed landmarks"])
     K = intrinsics(meta)
     side_px = landmarks.size_m * min(meta.fx, meta.fy) / max(-meta.down_m, 1e-6)
-    corners, ids, _ = _detector(landmarks.family, round(4 * side_px / max(gray.shape), 4)).detectMarkers(gray)
-    if ids is None:
-        return Registration(prior, "estimate", notes=["no landmark in view"])
     prior_inv = np.linalg.inv(prior)
     # How far the estimate may put a landmark from where it is: position error plus
     # the yaw error swung over the footprint, generously.
     alt = -meta.down_m
     gate_m = 2.0 + 4.0 * (getattr(meta, "pose_sigma_m", 0.0) + alt * math.radians(getattr(meta, "yaw_sigma_deg", 0.0)
                                                                                       + 2.0))
+    reach = _in_reach(landmarks, prior_inv, (gray.shape[1], gray.shape[0]), gate_m, cell_size_m)
+    corners, ids = _detect(gray, landmarks.family, round(4 * side_px / max(gray.shape), 4), reach)
+    if ids is None:
+        return Registration(prior, "estimate", notes=["no landmark in view"])
     floor_pts, image_pts, names = [], [], []
     for quad, lid in zip(corners, ids.ravel().tolist()):
         table = landmarks.by_id.get(int(lid))
