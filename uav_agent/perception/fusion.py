@@ -138,8 +138,9 @@ class Fusion:
         self.goals |= frame_goals
         self.marker_vote[sl] += w * (cells.marker_like & trusted)
         ys, xs = np.nonzero(cells.marker_like & trusted)
-        candidates = {(int(x) + cells.x0, int(y) + cells.y0) for x, y in zip(xs, ys)} - frame_goals - self.shelf_cells
-        self.sightings += [s for s in read_markers(view, candidates, grid, self.warnings)
+        marked = {(int(x) + cells.x0, int(y) + cells.y0) for x, y in zip(xs, ys)} - self.shelf_cells
+        # The detector also looks at goals: a robot parked on its goal shows its marker there.
+        self.sightings += [s for s in read_markers(view, marked - frame_goals, grid, self.warnings, near=marked)
                            if s.cell not in self.shelf_cells and s.cell in inside]
         return view
 
