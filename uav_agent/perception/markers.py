@@ -175,7 +175,9 @@ def read_markers(view: View, candidates: set[Cell], grid: tuple[int, int], warni
     in_place_quality = perimeter * 0.8   # it trusts the pose, not the marker's own corners
     for cell in sorted(candidates | set(by_cell)):
         margins = _module_margins(view, cell)
-        if margins is None or (by_cell.get(cell) is None and _identify(margins)[0] is None):
+        # Also when the detector read the cell: the full-cell grid laid over a pad layout's
+        # marker reads its modules half off and would veto a true detection.
+        if margins is None or _identify(margins)[0] is None:
             # The pad layout's smaller marker on a white body (sim_world.camera, goal_pads).
             pad = _module_margins(view, cell, PAD_MARKER_CELLS)
             if pad is not None:
