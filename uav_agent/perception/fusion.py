@@ -22,13 +22,14 @@ from protocol.messages import CameraFrame
 from .frames import Frame, Pixels, pixels
 from .goals import goals_in
 from .markers import Sighting, read_markers, settle
-from .occupancy import cells_in
+from .occupancy import MARKER_STD_RATIO, cells_in
 from .registration import Landmarks, Registration, register
 from .view import View, px_per_cell, sharpness
 
 ESTIMATE_WEIGHT = 0.05      # a view placed by the pose estimate alone, against one registered by landmarks
 UNSURE_AGREEMENT = 0.5      # |weighted vote| / total weight below this: the views disagree
 UNSURE_WEIGHT = 0.1         # total weight below this: nothing clear saw the cell (a clear view weighs 0.5..1)
+DETECT_CONTRAST = MARKER_STD_RATIO / 2   # cells the marker detector reads: robots >= 0.17, plain floor <= 0.11
 
 
 @dataclass(frozen=True)
@@ -133,9 +134,12 @@ class Fusion:
         self.goals |= frame_goals
         self.marker_vote[sl] += w * (cells.marker_like & trusted)
         ys, xs = np.nonzero(cells.marker_like & trusted)
-        marked = {(int(x) + cells.x0, int(y) + cells.y0) for x, y in zip(xs, ys)} - self.shelf_cells
-        # The detector also looks at goals: a robot parked on its goal shows its marker there.
-        self.sightings += [s for s in read_markers(view, marked - frame_goals, grid, self.warnings, near=marked)
+        candidates = {(int(x) + cells.x0, int(y) + cells.y0) for x, y in zip(xs, ys)} - frame_goals - self.shelf_cells
+        # The detector looks wider: at goals (a robot parked on its goal shows its marker there)
+        # and at half a marker's contrast (blur dims a marker's white below the in-place test's).
+        ys, xs = np.nonzero((cells.contrast > DETECT_CONTRAST) & trusted)
+        near = {(int(x) + cells.x0, int(y) + cells.y0) for x, y in zip(xs, ys)} - self.shelf_cells
+        self.sightings += [s for s in read_markers(view, candidates, grid, self.warnings, near=near | candidates)
                            if s.cell not in self.shelf_cells and s.cell in inside]
         return view
 

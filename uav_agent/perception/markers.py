@@ -175,12 +175,15 @@ def read_markers(view: View, candidates: set[Cell], grid: tuple[int, int], warni
     in_place_quality = perimeter * 0.8   # it trusts the pose, not the marker's own corners
     for cell in sorted(candidates | set(by_cell)):
         margins = _module_margins(view, cell)
-        # Also when the detector read the cell: the full-cell grid laid over a pad layout's
-        # marker reads its modules half off and would veto a true detection.
         if margins is None or _identify(margins)[0] is None:
             # The pad layout's smaller marker on a white body (sim_world.camera, goal_pads).
             pad = _module_margins(view, cell, PAD_MARKER_CELLS)
-            if pad is not None:
+            # Where the detector read the cell, the pad grid's read checks it only if it names a
+            # code clearly: the full-cell grid laid over a pad marker reads its modules half off
+            # and would veto a true detection, but a noisy full-cell marker read with the pad
+            # grid names nothing clearly and must not let a misread through.
+            if pad is not None and (margins is None or by_cell.get(cell) is None
+                                    or _identify(pad)[1] >= DECODE_MIN_CONFIDENCE):
                 margins = pad
         if margins is None:
             continue   # no clean frame where the pose puts it: a detector read stands alone
