@@ -248,3 +248,32 @@ def test_closer_looks_cover_scattered_cells_with_few_hovers():
     assert len(points) < len(cells) / 2
     for x, y in cells:      # every cell whole inside the footprint of some hover
         assert any(abs((x + 0.5) - e) <= 20.0 - 1 and abs(-(y + 0.5) - n) <= 15.0 - 1 for n, e in points)
+
+
+@pytest.mark.timeout(120)
+def test_the_450_surveys_pad_layout_robots_read_by_the_detector_are_kept():
+    """The realistic camera's robots are the pad layout's smaller markers: the full-cell module
+    grid laid over one reads half off and once vetoed true detections (these two frames)."""
+    from sim_world.camera import PoseEstimator, VehicleView, capture_frame
+    from sim_world.world import DRONE_CAMERA
+    from uav_agent.mission import Mission
+    from uav_agent.perception.markers import read_markers
+    from uav_agent.perception.occupancy import cells_in
+
+    model = CameraModel(**{**DRONE_CAMERA, **PRESETS["realistic"]})
+    scene = bench_scene("warehouse-450", 50, model)
+    marks = Landmarks(scene.landmarks.family, scene.landmarks.size_m, {})
+    for lid, e, n in scene.landmarks.landmarks:
+        marks.by_id[lid] = np.vstack([marks.by_id.get(lid, np.zeros((0, 2))), [[e, n]]])
+    poses = survey_poses(450, 450, CELL, model, min_px_per_cell=20.0, border_px=Mission._border(model))
+    for k in (4, 6):
+        n, e, alt = poses[k]
+        view = prepare(capture_frame(scene, VehicleView(n, e, -alt), model, CELL, PoseEstimator(model, 0), 8.0, k),
+                       marks, CELL)
+        cells = cells_in(view, (450, 450))
+        h, w = cells.seen.shape
+        seen = {c: r for r, c in scene.robots.items()
+                if 0 <= c[0] - cells.x0 < w and 0 <= c[1] - cells.y0 < h and cells.seen[c[1] - cells.y0, c[0] - cells.x0]}
+        warnings: list[str] = []
+        read = {s.cell: s.robot for s in read_markers(view, set(seen), (450, 450), warnings)}
+        assert seen and read == seen and warnings == []

@@ -370,9 +370,12 @@ class Mission:
         t_survey = time.perf_counter()
 
         def perceive(frame: CameraFrame) -> None:   # on the images' thread
+            from .perception.frames import pixels
+
+            seen = pixels(frame)        # decoded and undistorted once, for the blur check and the fusion
             if not verdict:
-                verdict["lower"] = self._sharp_enough(frame, first)
-            self.survey_fusion.add(frame)
+                verdict["lower"] = self._sharp_enough(seen.gray, first)
+            self.survey_fusion.add(seen)
 
         shots = self._shots(self.survey_fusion, perceive)
         try:
@@ -412,18 +415,14 @@ class Mission:
         self._fly_m_s = max(1.0, path_length(poses, poses[0][:2]) / took) if took > 0 else SURVEY_SPEED_M_S
         self.clock.lap("survey")
 
-    def _sharp_enough(self, frame: CameraFrame, camera: CameraFrame):
-        """None if the survey's resolution reads markers through this image's blur; else the
-        survey poses at the resolution that does (measured from the image's own edges)."""
-        import cv2
-
-        from .perception import decode_frame
+    def _sharp_enough(self, gray, camera: CameraFrame):
+        """None if the survey's resolution reads markers through the blur of this (undistorted,
+        grey) image; else the survey poses at the resolution that does (measured from the image's
+        own edges)."""
         from .perception.blur import blur_sigma
-        from .perception.frames import undistorted
         from .survey import ROBOT_MODULE_CELLS, px_per_cell_for, survey_poses
 
-        image, _ = undistorted(decode_frame(frame))
-        sigma = blur_sigma(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))
+        sigma = blur_sigma(gray)
         c = self.info.cell_size_m
         module = ROBOT_MODULE_CELLS if self.landmarks is None else min(ROBOT_MODULE_CELLS, self.landmarks.module_m / c)
         need = px_per_cell_for(sigma, self.cfg.min_px_per_cell, module)

@@ -68,3 +68,25 @@ def undistorted(frame: Frame) -> tuple[np.ndarray, np.ndarray | None]:
     meta = frame.meta
     m1, m2, valid = _undistort_maps(meta.width, meta.height, tuple(intrinsics(meta).ravel()), dist)
     return cv2.remap(frame.image, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), valid
+
+
+@dataclass(frozen=True, eq=False)
+class Pixels:
+    """A frame's image as the ideal pinhole camera sees it, in colour and in grey: decoded and
+    undistorted once, for whatever reads it (perception, the survey's blur check)."""
+    frame: Frame
+    image: np.ndarray             # BGR, undistorted
+    gray: np.ndarray
+    valid: np.ndarray | None      # pixels that came from the sensor (None: all)
+
+
+def pixels(item: Pixels | Frame | CameraFrame) -> Pixels:
+    """Decode (a CameraFrame) and undistort (a Frame); Pixels pass through."""
+    if isinstance(item, Pixels):
+        return item
+    frame = decode_frame(item) if isinstance(item, CameraFrame) else item
+    if frame.image.ndim != 3 or frame.image.shape[:2] != (frame.meta.height, frame.meta.width):
+        raise ProtocolError(f"frame at t={frame.meta.time_s:.2f}s: image shape {frame.image.shape} "
+                            f"does not match its {frame.meta.width}x{frame.meta.height} header")
+    image, valid = undistorted(frame)
+    return Pixels(frame, image, cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), valid)

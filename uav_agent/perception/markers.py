@@ -1,8 +1,10 @@
 """Robots by their ArUco marker (DICT_4X4_1000, id = robot id).
 
-Markers are found by the detector in the whole (undistorted) image, the marker
-centre through the view's homography to a floor point, hence a cell; then every
-marker-like cell is also read in place (resampled onto its module grid by the
+Markers are found by the detector in a small window of the (undistorted) image
+around each cell that shows a marker's contrast (a robot stands on one cell, and
+a 12 MP frame holds a few dozen of them in a sea of shelves and floor), the
+marker centre through the view's homography to a floor point, hence a cell;
+then every marker-like cell is also read in place (resampled onto its module grid by the
 homography): that read rescues small, blurred or noisy markers whose outline
 the detector misses, and vetoes a detector read its modules contradict. Both
 need the registration to be right, which the landmarks give.
@@ -20,7 +22,7 @@ import numpy as np
 
 from protocol.grid import Cell, on_grid
 
-from .view import View, to_floor
+from .view import View, to_floor, to_image
 
 ARUCO_DICTIONARY = cv2.aruco.DICT_4X4_1000
 _DICTIONARY = cv2.aruco.getPredefinedDictionary(ARUCO_DICTIONARY)
@@ -33,6 +35,8 @@ DECODE_MODULE_PX = 6           # resampling of a marker module for the in-place 
 DECODE_MIN_CONFIDENCE = 0.04   # of the black-white contrast: the weakest module's margin
 DETECTOR_MAX_CONTRADICTION = 0.25  # measured: true reads >= -0.18, misreads <= -0.30
 MIN_MARKER_CONTRAST = 0.3      # (white - black) / white of a readable marker
+WINDOW_CELLS = 1.0             # half the side of a detector window: the cell and half of each neighbour
+WINDOW_PAD_PX = 4              # and a few pixels more, for the pose's error and the detector's border margin
 
 
 @lru_cache(maxsize=16)
@@ -136,25 +140,50 @@ def _support(margins: np.ndarray, rid: int) -> float:
     return max(float((margins * signs).min()) for signs in _code(rid))
 
 
-def read_markers(view: View, candidates: set[Cell], grid: tuple[int, int], warnings: list[str]
-                  ) -> list[Sighting]:
-    """ArUco detection over the whole image, checked against, and completed by, an
-    in-place read of every marker-like cell."""
+def _detect_near(view: View, cells: Collection[Cell], perimeter: float) -> list[tuple[np.ndarray, int]]:
+    """ArUco detections (image corners, id) in a window around each of `cells`.
+
+    Every window has the same size, so one detector (its perimeter limits are
+    relative to the image's side) serves them all."""
     img_h, img_w = view.gray.shape
+    side = min(2 * (math.ceil(WINDOW_CELLS * view.ppc) + WINDOW_PAD_PX), img_w, img_h)
+    if not cells:
+        return []
+    detector = _detector(round(perimeter / side, 4))
+    found: list[tuple[np.ndarray, int]] = []
+    for cx, cy in to_image([(x + 0.5, y + 0.5) for x, y in sorted(cells)], view.H):
+        if not (np.isfinite(cx) and np.isfinite(cy)):
+            continue
+        x0 = min(max(0, round(cx) - side // 2), img_w - side)
+        y0 = min(max(0, round(cy) - side // 2), img_h - side)
+        corners, ids, _ = detector.detectMarkers(view.gray[y0:y0 + side, x0:x0 + side])
+        for quad, rid in zip(corners, [] if ids is None else ids.ravel().tolist()):
+            found.append((quad.reshape(4, 2).astype(np.float64) + (x0, y0), rid))
+    return found
+
+
+def read_markers(view: View, candidates: set[Cell], grid: tuple[int, int], warnings: list[str],
+                 near: Collection[Cell] | None = None) -> list[Sighting]:
+    """ArUco detection around the cells `near` (default the candidates), checked against, and
+    completed by, an in-place read of every marker-like cell (the candidates)."""
     perimeter = 4 * MARKER_SIZE_CELLS * view.ppc
-    corners, ids, _ = _detector(round(perimeter / max(img_w, img_h), 4)).detectMarkers(view.gray)
     by_cell: dict[Cell, Sighting] = {}
-    for quad, rid in zip(corners, [] if ids is None else ids.ravel().tolist()):
-        s = _sighting(view, quad.reshape(4, 2).astype(np.float64), rid, grid, warnings)
+    for quad, rid in _detect_near(view, candidates if near is None else near, perimeter):
+        s = _sighting(view, quad, rid, grid, warnings)
         if s is not None:
             by_cell[s.cell] = s
     in_place_quality = perimeter * 0.8   # it trusts the pose, not the marker's own corners
     for cell in sorted(candidates | set(by_cell)):
         margins = _module_margins(view, cell)
-        if margins is None or (by_cell.get(cell) is None and _identify(margins)[0] is None):
+        if margins is None or _identify(margins)[0] is None:
             # The pad layout's smaller marker on a white body (sim_world.camera, goal_pads).
             pad = _module_margins(view, cell, PAD_MARKER_CELLS)
-            if pad is not None:
+            # Where the detector read the cell, the pad grid's read checks it only if it names a
+            # code clearly: the full-cell grid laid over a pad marker reads its modules half off
+            # and would veto a true detection, but a noisy full-cell marker read with the pad
+            # grid names nothing clearly and must not let a misread through.
+            if pad is not None and (margins is None or by_cell.get(cell) is None
+                                    or _identify(pad)[1] >= DECODE_MIN_CONFIDENCE):
                 margins = pad
         if margins is None:
             continue   # no clean frame where the pose puts it: a detector read stands alone

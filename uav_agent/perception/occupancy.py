@@ -39,6 +39,7 @@ class Cells:
     confidence: np.ndarray      # 0..1 per cell: how clearly floor or shelf
     marker_like: np.ndarray
     centre_weight: np.ndarray   # 1 at the image centre, falling towards the edges
+    contrast: np.ndarray        # grey std over the cell / the floor's brightness there (a marker's > MARKER_STD_RATIO)
 
 
 def _otsu(values: np.ndarray) -> tuple[float, float, float]:
@@ -140,7 +141,8 @@ def cells_in(view: View, grid: tuple[int, int]) -> Cells | None:
     # ... and its white parts are as bright as the floor there: a noisy or half-covered shelf is not.
     white = np.percentile(cells[:, 1:-1, :, 1:-1].reshape(ny, q - 2, nx, q - 2).transpose(0, 2, 1, 3)
                           .reshape(ny, nx, -1), 90, axis=2)
-    marker_like = seen & (std > MARKER_STD_RATIO * np.exp(illumination)) & (white > MARKER_WHITE_RATIO * np.exp(illumination))
+    contrast = std / np.exp(illumination)
+    marker_like = seen & (contrast > MARKER_STD_RATIO) & (white > MARKER_WHITE_RATIO * np.exp(illumination))
     r = np.hypot((centres[..., 0] - img_w / 2) / (img_w / 2), (centres[..., 1] - img_h / 2) / (img_h / 2))
     centre_weight = np.clip(1.0 - 0.5 * r / math.sqrt(2), 0.3, 1.0)
-    return Cells(x0, y0, seen, free, confidence, marker_like, centre_weight)
+    return Cells(x0, y0, seen, free, confidence, marker_like, centre_weight, contrast)

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cached_property, lru_cache
 
 import cv2
 import numpy as np
@@ -34,8 +34,10 @@ SINGLE_LANDMARK_PX = 40.0  # a landmark this many pixels wide registers an image
 SINGLE_TRUST = 0.15        # cells of trusted radius per pixel of a lone landmark's side
 FULL_POSE_LANDMARKS = 3    # from this many, the tilt too comes from the image
 LEVEL_RANSAC_M = 0.1       # inlier threshold of the level fit, metres on the floor
+REFIT_ROUNDS = 3           # of the full pose: inliers again by the refined pose, refined again
 MAX_REPROJECTION_PX = 2.5  # an accepted registration's RMS error over its inliers
 QUIET_ZONE = 1 / 0.75      # a landmark's white block, as a multiple of its black square's side
+TILE_CONTEXT_PX = 32       # around a landmark's block in its detection tile: the widest threshold window and more
 
 # Camera axes (columns) in the vehicle's body frame (x forward, y right, z down):
 # a nadir camera whose image right is the body's right and image up its nose.
@@ -63,6 +65,13 @@ class Landmarks:
         for rid, east, north in marks:
             by_id.setdefault(int(rid), []).append((float(east), float(north)))
         return cls(family, float(info.landmark_size_m), {k: np.array(v, np.float64) for k, v in by_id.items()})
+
+    @cached_property
+    def table(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every instance as (ids [n], (east_m, north_m) [n, 2])."""
+        ids = np.concatenate([np.full(len(v), k, np.int64) for k, v in self.by_id.items()] or [np.zeros(0, np.int64)])
+        centres = np.concatenate([v.reshape(-1, 2) for v in self.by_id.values()] or [np.zeros((0, 2))])
+        return ids, centres
 
     @property
     def module_m(self) -> float:
@@ -156,7 +165,7 @@ def homography(meta: CameraFrame, cell_size_m: float) -> np.ndarray:
 
 
 @lru_cache(maxsize=16)
-def _detector(family: str, perimeter_rate: float) -> cv2.aruco.ArucoDetector:
+def _parameters(perimeter_rate: float) -> cv2.aruco.DetectorParameters:
     params = cv2.aruco.DetectorParameters()
     # The altitude fixes a landmark's size in pixels: skipping candidates far off it
     # (shelf edges, robot markers) makes detection several times faster.
@@ -166,7 +175,77 @@ def _detector(family: str, perimeter_rate: float) -> cv2.aruco.ArucoDetector:
     # (each decode searches the whole dictionary: thousands of shelf squares cost seconds).
     params.minOtsuStdDev = MIN_CANDIDATE_STD
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
-    return cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, family)), params)
+    return params
+
+
+def _in_reach(landmarks: Landmarks, prior_inv: np.ndarray, box: tuple[int, int, int, int], gate_m: float,
+              cell_size_m: float) -> np.ndarray | None:
+    """Sorted ids of the landmarks a detection centred in the pixel box (x0, y0, x1, y1) could be
+    matched to: an instance within the gate of the floor the prior says the box covers.
+    None: the prior sees the horizon there."""
+    x0, y0, x1, y1 = box
+    corners = np.array([[x0, y0, 1], [x1, y0, 1], [x0, y1, 1], [x1, y1, 1]], np.float64) @ prior_inv.T
+    if not np.all(corners[:, 2] > 0):
+        return None
+    uv = corners[:, :2] / corners[:, 2:3]
+    # Floor (east, north) metres of the box's bounding box on the floor, widened by the gate.
+    en = np.column_stack([uv[:, 0] * cell_size_m, -uv[:, 1] * cell_size_m])
+    ids, centres = landmarks.table
+    near = np.all((centres >= en.min(axis=0) - gate_m) & (centres <= en.max(axis=0) + gate_m), axis=1)
+    return np.unique(ids[near])
+
+
+def _detect(gray: np.ndarray, family: str, perimeter_px: float, ids: np.ndarray | None
+            ) -> tuple[list[np.ndarray], list[int]]:
+    """Landmark corners and ids in `gray`, decoded against only `ids` (None: the whole family).
+
+    Decoding searches the dictionary for every candidate square, and with a thousand codes
+    that search is most of the detector's time; the few codes that can be in view give the
+    same answers, since a code within the detector's correction of a read is the only one."""
+    full = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, family))
+    rate = round(perimeter_px / max(gray.shape), 4)
+    if ids is None:
+        ids = np.arange(full.bytesList.shape[0])
+        dictionary = full
+    else:
+        ids = ids[(ids >= 0) & (ids < full.bytesList.shape[0])]
+        if ids.size == 0:
+            return [], []
+        dictionary = cv2.aruco.Dictionary(full.bytesList[ids], full.markerSize, full.maxCorrectionBits)
+    corners, found, _ = cv2.aruco.ArucoDetector(dictionary, _parameters(rate)).detectMarkers(gray)
+    return [c.reshape(4, 2) for c in corners], [] if found is None else ids[found.ravel()].tolist()
+
+
+def _detect_tiled(gray: np.ndarray, landmarks: Landmarks, prior_inv: np.ndarray, gate_m: float, cell_size_m: float,
+                  side_px: float, alt_m: float, f_px: float) -> tuple[list[np.ndarray], list[int]]:
+    """`_detect` over tiles of the image, each decoding only the codes in reach of its own part
+    of the floor (the gate is tens of metres, a 12 MP footprint a couple of hundred).
+
+    Each tile is read with a margin wider than a landmark's block plus the detector's widest
+    threshold window, and keeps the landmarks centred in its core: every landmark is read by
+    exactly one tile, with the same surroundings as in the whole image."""
+    img_h, img_w = gray.shape
+    margin = math.ceil(QUIET_ZONE * side_px / 2) + TILE_CONTEXT_PX
+    core = max(4 * margin, round(2 * gate_m * f_px / max(alt_m, 1e-6)))
+    nx, ny = max(1, round(img_w / core)), max(1, round(img_h / core))
+    xs = np.linspace(0, img_w, nx + 1).round().astype(int)
+    ys = np.linspace(0, img_h, ny + 1).round().astype(int)
+    corners: list[np.ndarray] = []
+    ids: list[int] = []
+    for y0, y1 in zip(ys[:-1], ys[1:]):
+        for x0, x1 in zip(xs[:-1], xs[1:]):
+            reach = _in_reach(landmarks, prior_inv, (x0, y0, x1, y1), gate_m, cell_size_m)
+            if reach is not None and reach.size == 0:
+                continue
+            ox, oy = max(0, x0 - margin), max(0, y0 - margin)
+            tile = gray[oy:min(img_h, y1 + margin), ox:min(img_w, x1 + margin)]
+            for quad, lid in zip(*_detect(tile, landmarks.family, 4 * side_px, reach)):
+                quad = quad.astype(np.float64) + (ox, oy)
+                cx, cy = quad.mean(axis=0)
+                if x0 <= cx < x1 and y0 <= cy < y1:
+                    corners.append(quad)
+                    ids.append(lid)
+    return corners, ids
 
 
 def _corners_floor(centre_en: np.ndarray, size_m: float, cell_size_m: float) -> np.ndarray:
@@ -193,21 +272,20 @@ def register(gray: np.ndarray, meta: CameraFrame, landmarks: Landmarks | None, c
         return Registration(prior, "estimate", notes=["no surveyed landmarks"])
     K = intrinsics(meta)
     side_px = landmarks.size_m * min(meta.fx, meta.fy) / max(-meta.down_m, 1e-6)
-    corners, ids, _ = _detector(landmarks.family, round(4 * side_px / max(gray.shape), 4)).detectMarkers(gray)
-    if ids is None:
-        return Registration(prior, "estimate", notes=["no landmark in view"])
     prior_inv = np.linalg.inv(prior)
     # How far the estimate may put a landmark from where it is: position error plus
     # the yaw error swung over the footprint, generously.
     alt = -meta.down_m
     gate_m = 2.0 + 4.0 * (getattr(meta, "pose_sigma_m", 0.0) + alt * math.radians(getattr(meta, "yaw_sigma_deg", 0.0)
                                                                                       + 2.0))
+    corners, ids = _detect_tiled(gray, landmarks, prior_inv, gate_m, cell_size_m, side_px, alt, min(meta.fx, meta.fy))
+    if not ids:
+        return Registration(prior, "estimate", notes=["no landmark in view"])
     floor_pts, image_pts, names = [], [], []
-    for quad, lid in zip(corners, ids.ravel().tolist()):
+    for quad, lid in zip(corners, ids):
         table = landmarks.by_id.get(int(lid))
         if table is None:
             continue
-        quad = quad.reshape(4, 2).astype(np.float64)
         u, v = cv2.perspectiveTransform(quad.mean(axis=0).reshape(1, 1, 2), prior_inv).ravel()
         predicted = np.array([u * cell_size_m, -v * cell_size_m])
         d = np.linalg.norm(table - predicted, axis=1)
@@ -240,6 +318,18 @@ def register(gray: np.ndarray, meta: CameraFrame, landmarks: Landmarks | None, c
         R6, pose6 = _pose_from(rvec, tvec)
         if _rms(ned[inliers], image[inliers], K, R6, pose6) < _rms(ned[inliers], image[inliers], K, R, pose):
             R, pose, solver = R6, pose6, "full"
+            # The level fit's inliers lean to where its assumed tilt fits best, and which those
+            # are depends on RANSAC's draw (the landmarks' order); with the tilt solved, the
+            # landmarks that agree with the pose are the inliers, whatever was drawn.
+            tol_px = LEVEL_RANSAC_M * min(K[0, 0], K[1, 1]) / max(-pose.down_m, 1e-6)
+            for _ in range(REFIT_ROUNDS):
+                agree = np.repeat(_residuals(ned, image, K, R, pose).reshape(-1, 4).max(axis=1) < tol_px, 4)
+                if np.array_equal(agree, inliers) or agree.sum() < 4 * FULL_POSE_LANDMARKS:
+                    break
+                inliers = agree
+                rvec, tvec = cv2.solvePnPRefineLM(ned[inliers], image[inliers], K, None, rvec, tvec)
+                R, pose = _pose_from(rvec, tvec)
+            used = {names[i // 4] for i in np.nonzero(inliers)[0]}
     rms = _rms(ned[inliers], image[inliers], K, R, pose)
     if not pose.down_m < 0:
         return Registration(prior, "estimate", notes=["landmarks put the camera under the floor"])
@@ -255,10 +345,16 @@ def register(gray: np.ndarray, meta: CameraFrame, landmarks: Landmarks | None, c
                         anchors=anchors, trust_radius=radius)
 
 
-def _rms(ned: np.ndarray, image: np.ndarray, K: np.ndarray, R: np.ndarray, pose: CameraPoseEstimate) -> float:
+def _residuals(ned: np.ndarray, image: np.ndarray, K: np.ndarray, R: np.ndarray, pose: CameraPoseEstimate
+               ) -> np.ndarray:
+    """Each point's reprojection error, pixels."""
     cam = (ned - np.array([pose.north_m, pose.east_m, pose.down_m])) @ R.T
     px = cam[:, :2] / cam[:, 2:3] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
-    return float(np.sqrt(np.mean(np.sum((px - image) ** 2, axis=1))))
+    return np.sqrt(np.sum((px - image) ** 2, axis=1))
+
+
+def _rms(ned: np.ndarray, image: np.ndarray, K: np.ndarray, R: np.ndarray, pose: CameraPoseEstimate) -> float:
+    return float(np.sqrt(np.mean(_residuals(ned, image, K, R, pose) ** 2)))
 
 
 def _level_fit(ned: np.ndarray, image: np.ndarray, meta: CameraFrame
