@@ -243,7 +243,7 @@ def _uav_patches() -> dict[str, Patch]:
     from uav_agent.fleet import FleetLink
     from uav_agent.flight import Flight
     from uav_agent.mission import Mission
-    from uav_agent.planning import pipeline, validator
+    from uav_agent.planning import interpreted, pipeline, validator
 
     transport_of, dispatch, end, decode_of, wait_until = (mission._transport, Mission._dispatch, Mission._end,
                                                           FleetLink._decode, FleetLink.wait_until)
@@ -267,23 +267,25 @@ def _uav_patches() -> dict[str, Patch]:
             return cls(**{**kw, **{k: f(kw) for k, f in change.items()}})
         return make
 
-    plan_plain = pipeline.plan_mission
+    def through_a_goal(plan_plain):
+        def plan(free, starts, goals, **kw):
+            # Robot 0 waits until robot 1 has arrived, then drives across robot 1's goal to its own.
+            from uav_agent.planning.astar import astar
 
-    def through_a_goal(free, starts, goals, **kw):
-        # Robot 0 waits until robot 1 has arrived, then drives across robot 1's goal to its own.
-        from uav_agent.planning.astar import astar
-
-        result = plan_plain(free, starts, goals, **kw)
-        paths = list(result.paths)
-        if len(paths) >= 2:
-            c = kw.get("connectivity", 4)
-            a, goal_a, goal_b = result.starts[0], result.goals[0], result.goals[1]
-            paths[0] = ([tuple(a)] * len(paths[1]) + astar(free, a, goal_b, c)[1:]
-                        + astar(free, goal_b, goal_a, c)[1:])
-        return dataclasses.replace(result, paths=paths)
+            result = plan_plain(free, starts, goals, **kw)
+            paths = list(result.paths)
+            if len(paths) >= 2:
+                c = kw.get("connectivity", 4)
+                a, goal_a, goal_b = result.starts[0], result.goals[0], result.goals[1]
+                paths[0] = ([tuple(a)] * len(paths[1]) + astar(free, a, goal_b, c)[1:]
+                            + astar(free, goal_b, goal_a, c)[1:])
+            return dataclasses.replace(result, paths=paths)
+        return plan
 
     def conflicting():
-        pipeline.plan_mission = through_a_goal
+        # Both ways the UAV plans: compiled, and interpreted while a fresh clone's kernels compile.
+        pipeline.plan_mission = through_a_goal(pipeline.plan_mission)
+        interpreted.plan_interpreted = through_a_goal(interpreted.plan_interpreted)
         validator.check = lambda *a, **k: None
 
     def skip_ack_wait(self, ready, timeout, failure, abort=None):
