@@ -156,6 +156,7 @@ class Mission:
         self.confirmed: dict[int, str] = {}     # robot -> the plan under which an image after its last move showed it on its goal
         self._stops: list = []                  # arrival_tour.Stop: poses still to shoot for arrivals ...
         self._stop = None                       # ... and the one the vehicle flies to or holds at
+        self._arrivals: dict[int, int] = {}     # robot -> the tick of its last move in the plan flown
         self._fly_m_s = SURVEY_SPEED_M_S        # the vehicle's speed between poses, in wall time (measured by the survey)
         self._contradicted: set[int] = set()
         self.unserved: list[Cell] = []
@@ -686,7 +687,8 @@ class Mission:
         self.confirmed = {r: plan.plan_id for r in self.confirmed if r in plan.paths
                           and {tuple(c) for c in plan.paths[r]} == {tuple(plan.goals[r])}}
         todo = {r: tuple(plan.goals[r]) for r in plan.ids if r not in self.confirmed}
-        self._stops = stops(self._poses, todo, arrival_ticks(plan.paths, plan.start_tick),
+        self._arrivals = arrival_ticks(plan.paths, plan.start_tick)   # of the plan flown: robot -> its last move's tick
+        self._stops = stops(self._poses, todo, self._arrivals,
                             self.info.cell_size_m) if todo else []
         self._stop = None
 
@@ -750,11 +752,9 @@ class Mission:
         perceived meanwhile, and `_monitor_seen` reports the robots it shows off their planned cell
         at tick k and confirms those it shows on their goals after their last move. Robots outside
         the image are not checked until the next full look."""
-        from .arrival_tour import arrival_ticks
-
         t = time.perf_counter()
         plan, fusion = self.plan, self._fusion(set(self.plan.ids))
-        arrived = {r for r, tick in arrival_ticks(plan.paths, plan.start_tick).items() if tick <= k}
+        arrived = {r for r, tick in self._arrivals.items() if tick <= k}
         glance = _Glance(plan.plan_id, k)
 
         def judge(frame: CameraFrame) -> None:   # on the images' thread
