@@ -18,7 +18,7 @@ from scenarios.landmarks import place_landmarks
 from scenarios.maps import place, resolve_map
 from sim_world.camera import PRESETS, CameraModel, Scene, encode_frame, render
 from uav_agent.perception import Landmarks, perceive
-from uav_robots.bench_perception import TARGET, bench_scene, score, simulate
+from uav_robots.bench_perception import TARGET, bench_scene, landmarks_of, score, simulate
 from uav_agent.perception.fusion import prepare
 from uav_agent.perception.relook import hover_points
 from uav_agent.perception.verdict import PerceptionError, explain_unplannable, raise_if_missing
@@ -149,7 +149,8 @@ def test_adaptive_thresholds_hold_under_dim_uneven_blurred_noisy_images(camera):
     ("warehouse-small", 8, TARGET),                                    # the combined target
     ("random:width=64,height=64,density=0.2", 20, {}),                 # landmarks on single obstacles
     ("random:width=64,height=64,density=0.2", 20, {"lighting": 0.5, "noise_std": 10.0, "pose_sigma_m": 0.5,
-                                                    "yaw_sigma_deg": 3.0})])
+                                                    "yaw_sigma_deg": 3.0}),
+    ("random:width=64,height=64,density=0.2", 20, TARGET)])            # sparse landmarks, blurred
 def test_the_missions_survey_and_closer_looks_read_everything(spec, robots, over):
     """The mission's rules offline (bench perception's simulate): a first image measures the
     blur, the survey flies low enough for it, closer looks settle what stayed in doubt."""
@@ -277,3 +278,23 @@ def test_the_450_surveys_pad_layout_robots_read_by_the_detector_are_kept():
         warnings: list[str] = []
         read = {s.cell: s.robot for s in read_markers(view, set(seen), (450, 450), warnings)}
         assert seen and read == seen and warnings == []
+
+
+def test_a_blurred_landmark_a_bit_or_two_off_is_still_read():
+    """At the combined target a 46 px landmark under blur 2 often reads two bits off. Read with
+    OpenCV's default 60 % of the family's correction, this closer look found one of the two
+    landmarks in view, and a lone landmark leaves yaw and scale loose by percents: its cells
+    a few metres away landed a third of a cell off, shelf edges read as markers and the
+    random-64 bench map kept 10 wrong cells after every closer look."""
+    from sim_world.camera import PoseEstimator, VehicleView, capture_frame
+    from uav_agent.perception.frames import pixels
+    from uav_agent.perception.registration import register
+
+    model = CameraModel(**{**PRESETS["realistic"], **TARGET})
+    scene = bench_scene("random:width=64,height=64,density=0.2", 20, model)
+    marks = landmarks_of(scene)
+    frame = capture_frame(scene, VehicleView(-46.0, 50.0, -10.3, 0.0), model, CELL, PoseEstimator(model, 0), 80.0, 40)
+    px = pixels(frame)
+    reg = register(px.gray, px.frame.meta, marks, CELL)
+    assert reg.source == "landmarks" and reg.landmarks >= 2, reg.notes
+    assert math.degrees(abs(reg.pose.yaw_rad)) < 0.5

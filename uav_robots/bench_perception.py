@@ -71,20 +71,24 @@ def bench_scene(spec: str, robots: int, model: CameraModel) -> Scene:
                  scene_landmarks(free, CELL, model), goal_pads=bool(model.goal_pads))
 
 
+def landmarks_of(scene: Scene) -> Landmarks | None:
+    """The scene's landmarks as the UAV knows them from WorldInfo."""
+    if scene.landmarks is None:
+        return None
+    lm = scene.landmarks
+    by_id: dict[int, list] = {}
+    for lid, e, n in lm.landmarks:
+        by_id.setdefault(lid, []).append((e, n))
+    return Landmarks(lm.family, lm.size_m, {k: np.array(v) for k, v in by_id.items()})
+
+
 def simulate(scene: Scene, model: CameraModel, seed: int = 0, survey_tilt_deg: float = 0.0):
     """The mission's survey and closer looks, rendered offline: (world model, images, perception seconds).
     `survey_tilt_deg`: the survey's images are taken leaning this much (roll or pitch, either
     way, image by image), as a body-fixed camera is right after the vehicle brakes; the closer
     looks wait for a level body, as the mission's do."""
     h, w = scene.free.shape
-    marks = None
-    if scene.landmarks is not None:
-        lm = scene.landmarks
-        marks = Landmarks(lm.family, lm.size_m, {})
-        by_id: dict[int, list] = {}
-        for lid, e, n in lm.landmarks:
-            by_id.setdefault(lid, []).append((e, n))
-        marks = Landmarks(lm.family, lm.size_m, {k: np.array(v) for k, v in by_id.items()})
+    marks = landmarks_of(scene)
     estimator = PoseEstimator(model, seed)
     frames, clock, spent = [], [0.0], [0.0]
 

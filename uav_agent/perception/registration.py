@@ -175,6 +175,10 @@ def _parameters(perimeter_rate: float) -> cv2.aruco.DetectorParameters:
     # (each decode searches the whole dictionary: thousands of shelf squares cost seconds).
     params.minOtsuStdDev = MIN_CANDIDATE_STD
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    # The family's full correction (OpenCV uses 60 % of it by default): a blurred landmark often
+    # reads two bits off, and a misread cannot pass for another landmark here, since each id is
+    # matched only within the gate of where the prior puts it, and the fit's RANSAC drops the rest.
+    params.errorCorrectionRate = 1.0
     return params
 
 
