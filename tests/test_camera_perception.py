@@ -324,3 +324,28 @@ def test_outside_the_grid_is_drawn_in_its_own_colour_and_never_mistaken_for_floo
     assert tuple(image[0, 0]) == (110, 45, 35)
     world = perceive([Frame(image, camera_frame((-2.0, 2.0, -8.0, 0.0), model, 0.0))], 4, 4, CELL)
     assert world.free.all() and world.robots == {7: (1, 1)} and world.goals == [(2, 2)]
+
+
+def test_a_frame_with_cells_far_over_the_needed_resolution_is_read_smaller_and_the_same():
+    """A 12 MP camera over a small floor sees each cell across ~150 px: perception reads it
+    scaled down (JPEG decodes straight to that size) and finds the same floor, robots and goals."""
+    from sim_world.camera import PRESETS, CameraModel, PoseEstimator, VehicleView, capture_frame
+    from sim_world.world import DRONE_CAMERA
+    from uav_agent.perception import Fusion, frames
+    from uav_agent.survey import survey_poses
+    from uav_robots.bench_perception import bench_scene, landmarks_of, score
+
+    model = CameraModel(**{**DRONE_CAMERA, **PRESETS["realistic"]})
+    scene = bench_scene("warehouse-small", 8, model)
+    h, w = scene.free.shape
+    n, e, alt = survey_poses(w, h, 1.0, model, 20.0, border_px=180)[0]
+    frame = capture_frame(scene, VehicleView(n, e, -alt, 0.0), model, 1.0, PoseEstimator(model, 0), 1.0, 0)
+    r = frames.reduction(frame, 1.0)
+    assert r >= 2 and min(frame.fx, frame.fy) / r / alt >= frames.READ_PX_PER_CELL
+    small = frames.pixels(frame, r)
+    assert small.gray.shape == (frame.height // r, frame.width // r)
+    assert small.frame.meta.fx == frame.fx / r
+    fusion = Fusion(w, h, 1.0, set(scene.robots), landmarks_of(scene))
+    view = fusion.add(frame)
+    assert view.gray.shape == small.gray.shape and view.reg.registered
+    assert score(fusion.model(), scene) == (0, 0, 0)

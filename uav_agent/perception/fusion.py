@@ -19,7 +19,7 @@ from protocol.errors import MissionError
 from protocol.grid import Cell
 from protocol.messages import CameraFrame
 
-from .frames import Frame, Pixels, pixels
+from .frames import Frame, Pixels, pixels, reduction
 from .goals import goals_in
 from .markers import Sighting, read_markers, settle
 from .occupancy import MARKER_STD_RATIO, cells_in
@@ -57,7 +57,8 @@ class WorldModel:
 
 
 def prepare(item: Pixels | Frame | CameraFrame, landmarks: Landmarks | None, cell_size_m: float) -> View:
-    px = pixels(item)
+    meta = item.frame.meta if isinstance(item, Pixels) else item.meta if isinstance(item, Frame) else item
+    px = pixels(item, reduction(meta, cell_size_m))
     gray = px.gray
     reg: Registration = register(gray, px.frame.meta, landmarks, cell_size_m)
     ppc = px_per_cell(reg.H, gray.shape)
