@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from collections.abc import Collection
 
+import cv2
 import numpy as np
-from scipy import ndimage
 
 from protocol.errors import MissionError
 from protocol.grid import Cell
@@ -54,8 +54,7 @@ def missing(model: WorldModel, known: Collection[int] | None, expected: int | No
 def walled_in(model: WorldModel, connectivity: int = 4) -> str | None:
     """Robots and goals the perceived floor leaves in a region with a different number of
     each: a misread shelf, or an unsure cell kept as one, cuts them off. None if all regions balance."""
-    structure = ndimage.generate_binary_structure(2, 1 if connectivity == 4 else 2)
-    labels, _ = ndimage.label(model.free, structure=structure)
+    _, labels = cv2.connectedComponents(model.free.astype(np.uint8), connectivity=connectivity)
     robots: dict[int, list[Cell]] = {}
     goals: dict[int, list[Cell]] = {}
     for c in model.robots.values():
