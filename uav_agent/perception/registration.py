@@ -45,9 +45,9 @@ _CAMERA_IN_BODY = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 
 MIN_CANDIDATE_STD = 15.0   # grey std inside a marker candidate (a marker's is ~100, a blank square's noise < 10)
 # One adaptive-threshold window of about two modules (a 4x4 landmark is 6 modules wide with its
-# border) instead of OpenCV's three (3, 13, 23 px): on the 450's survey, half the detector's time,
+# border) instead of OpenCV's three (3, 13, 23 px): on the 450's survey, 0.7 of the detector's time,
 # the same landmarks found and the same reprojection error; under blur 2, noise 10 and lighting
-# 0.5 more landmarks than the three windows, at a lower error (bench-results/mission/survey-realistic-450.md).
+# 0.5 0.45 of its time, as many landmarks, a lower error (bench-results/mission/survey-realistic-450.md).
 THRESHOLD_WINDOW = 0.3     # of a landmark's side in pixels
 
 
