@@ -287,13 +287,15 @@ def test_the_vehicle_reports_its_attitude_over_mavlink():
 # --- presets and keys -----------------------------------------------------------------
 
 def test_presets_and_keys_combine_and_every_key_has_a_default():
-    assert DEFAULT_CAMERA_PRESET == "ideal" and camera_options("") == {}
+    assert DEFAULT_CAMERA_PRESET == "realistic" and camera_options("") == PRESETS["realistic"]
+    assert camera_options("ideal") == {} and camera_model_from("ideal") == CameraModel()
     real = camera_model_from("realistic")
     assert (real.pose_sigma_m, real.yaw_sigma_deg, real.k1, real.jpeg_quality) == (0.2, 1.5, -0.05, 90)
     assert real.noise_std == 3.0 and real.exposure_ms == 4.0 and real.vignetting > 0 and real.wobble_deg > 0
     mixed = camera_model_from("realistic,blur_sigma=2,jpeg_quality=0")
     assert mixed.blur_sigma == 2 and mixed.jpeg_quality == 0 and mixed.k1 == -0.05
-    assert camera_model_from("blur_sigma=1.5") == CameraModel(blur_sigma=1.5)   # over the default preset
+    assert camera_model_from("blur_sigma=1.5") == CameraModel(**{**PRESETS["realistic"], "blur_sigma": 1.5})  # over the default
+    assert camera_model_from("ideal,blur_sigma=1.5") == CameraModel(blur_sigma=1.5)
     model_fields = set(CameraModel.__dataclass_fields__)
     assert set(KEYS) == model_fields and set(PRESETS["realistic"]) <= model_fields
     for key, (default, _) in KEYS.items():

@@ -15,6 +15,9 @@ from uav_agent.planning.types import Problem
 from uav_agent.planning.validator import validate
 
 CLI = [sys.executable, "-m", "uav_robots"]
+# The perfect camera, for the tests whose subject is not the camera: the default (realistic) one is
+# exercised by test_default_mission, the 450 paper setting and tests/test_mission_perception.py.
+IDEAL = ["--camera", "ideal"]
 
 
 def _run(args, timeout):
@@ -65,6 +68,9 @@ def test_default_mission(tmp_path):
     report = load_report(tmp_path)
     _check_report(report)
     assert report["robots"] == 8
+    # The default camera is the realistic one: every image placed by the landmarks it sees.
+    reg = report["perceived"]["registration"]
+    assert reg["by_landmarks"] >= 1 and reg["reprojection_px_max"] < 2.5
     for name in ("overhead.png", "paths.png", "replay.gif"):
         assert (tmp_path / name).stat().st_size > 1000
     procs = report["processes"]
@@ -77,7 +83,7 @@ def test_first_run_does_not_wait_for_the_compile(tmp_path):
     """A fresh clone (an empty numba cache): the kernels compile in a process of their own, the
     default mission is planned by the same planners interpreted, and the compile stops with it."""
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")}
-    res = subprocess.run(CLI + ["run", "--out", str(tmp_path / "out")], capture_output=True, text=True,
+    res = subprocess.run(CLI + ["run", *IDEAL, "--out", str(tmp_path / "out")], capture_output=True, text=True,
                          timeout=180, env=env)
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
     assert "planning this small instance with them interpreted" in res.stdout
@@ -91,14 +97,14 @@ def test_first_run_does_not_wait_for_the_compile(tmp_path):
 
 
 def test_json_and_quiet_for_scripts(tmp_path):
-    res = _run(["run", "--json"], timeout=180)
+    res = _run(["run", *IDEAL, "--json"], timeout=180)
     assert res.returncode == 0, res.stderr[-2000:]
     lines = res.stdout.strip().splitlines()
     assert len(lines) == 1, lines[:5]
     summary = json.loads(lines[0])
     assert summary["completed"] is True and summary["exit_code"] == 0 and summary["out"] is None
     assert all(summary["verified"].values()) and summary["timings"]["wall_total"] > 0
-    res = _run(["run", "--quiet", "--out", str(tmp_path)], timeout=180)
+    res = _run(["run", *IDEAL, "--quiet", "--out", str(tmp_path)], timeout=180)
     assert res.returncode == 0, res.stderr[-2000:]
     assert not any(line.startswith("[") for line in res.stdout.splitlines()), res.stdout[:500]
     assert "mission COMPLETED" in res.stdout
@@ -108,7 +114,7 @@ def test_json_and_quiet_for_scripts(tmp_path):
 def test_noisy_camera_needs_a_closer_look(tmp_path):
     """Noise, blur and uneven light make some markers unreadable from survey height: the UAV flies lower."""
     res = _run(["run", "--map", "warehouse:blocks_x=4,blocks_y=12", "--robots", "30", "--out", str(tmp_path),
-                "--camera", "width=1280,height=960,noise_std=10,blur_sigma=1.3,lighting=0.3"], timeout=240)
+                "--camera", "ideal,width=1280,height=960,noise_std=10,blur_sigma=1.3,lighting=0.3"], timeout=240)
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
     # A closer look at what stayed unreadable, or (the blur measured on the first image) a lower survey.
     assert "a closer look" in res.stdout or "px per cell instead of" in res.stdout
@@ -132,7 +138,7 @@ def _fleet_processes(fleet):
 @pytest.mark.parametrize("how", ["sigint", "kill-world"])
 def test_interrupt_or_failing_part_stops_everything(how):
     """Ctrl-C, or a part dying, stops the whole mission within seconds and leaves no process behind."""
-    proc = subprocess.Popen(CLI + ["run", "--robots", "4"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    proc = subprocess.Popen(CLI + ["run", *IDEAL, "--robots", "4"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     try:
         first = proc.stdout.readline()
@@ -182,10 +188,10 @@ def test_malformed_map_file(tmp_path):
     assert res.returncode == 2 and "3 rows, file has 1" in res.stderr and "Traceback" not in res.stderr
 
 
-def _mission_450(out, robots: int, timeout: float):
+def _mission_450(out, robots: int, timeout: float, camera: list[str] = ()):
     """The 450x450 warehouse with `robots`, as a user runs it: the checked report and the wall time."""
     t0 = time.monotonic()
-    res = _run(["run", "--map", "warehouse-450", "--robots", str(robots), "--out", str(out)], timeout=timeout)
+    res = _run(["run", "--map", "warehouse-450", "--robots", str(robots), "--out", str(out), *camera], timeout=timeout)
     wall = time.monotonic() - t0
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
     report = load_report(out)
@@ -214,7 +220,7 @@ def test_paper_setting_450_with_50_robots(tmp_path):
 def test_a_thousand_robots_on_the_450_floor(tmp_path):
     """The issue's fleet size end to end: pooled robot processes, every plan executed as
     validated, the floor perceived as it is, every robot verified, no collision."""
-    report, wall = _mission_450(tmp_path, 1000, timeout=600)
+    report, wall = _mission_450(tmp_path, 1000, timeout=600, camera=IDEAL)
     assert report["robots"] == 1000 and all(report["verified"].values())
     assert 1 < len(report["processes"]["robots"]) < 1000, "a fleet this size runs in pools"
     print(f"450x450 / 1000 robots wall time {wall:.1f} s, timings {report['timings']}")

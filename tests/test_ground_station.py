@@ -352,8 +352,8 @@ def test_world_vehicle_flies_a_mission_uploaded_by_a_ground_station():
     gcs = Client(None, listen=gcs_port, heartbeat_hz=2.0)  # like QGroundControl on 14550
     world = subprocess.Popen([sys.executable, "-m", "sim_world", "--listen", f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}",
                               "--mavlink", f"udpin:127.0.0.1:{free_port()}", "--gcs", f"udpout:127.0.0.1:{gcs_port}",
-                              "--time-scale", "10"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                             stdin=subprocess.DEVNULL)
+                              "--time-scale", "10", "--camera", "ideal"], stdout=subprocess.PIPE,
+                             stderr=subprocess.STDOUT, text=True, stdin=subprocess.DEVNULL)
     try:
         assert "ground station udpout:127.0.0.1" in world.stdout.readline()
         gcs.recv("HEARTBEAT", 15.0)
@@ -385,7 +385,7 @@ def test_run_with_a_signed_ground_station_completes_while_it_watches(tmp_path):
     key_file.write_text(KEY.hex() + "\n")  # as `openssl rand -hex 32` writes it
     gcs_port = free_port()
     gcs = Client(None, listen=gcs_port, key=KEY)
-    run = subprocess.Popen([sys.executable, "-m", "uav_robots", "run", "--robots", "4", "--quiet",
+    run = subprocess.Popen([sys.executable, "-m", "uav_robots", "run", "--camera", "ideal", "--robots", "4", "--quiet",
                             "--gcs", f"udpout:127.0.0.1:{gcs_port}", "--mavlink-key", str(key_file),
                             "--out", str(tmp_path / "out")],
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, stdin=subprocess.DEVNULL)

@@ -1,7 +1,8 @@
 """Whole missions with the honest camera: the estimated pose, lens, JPEG and degradations.
 
 Real processes (world, UAV, robots) through `uav-robots run`; the report's perceived map is
-checked against the world's ground truth."""
+checked against the world's ground truth. The default mission (tests/test_end_to_end.py) runs
+the default camera, the realistic one, and checks its registration the same way."""
 from __future__ import annotations
 
 import subprocess
@@ -25,10 +26,6 @@ def _mission(tmp_path, camera: str, timeout: float):
     reg = report["perceived"]["registration"]
     assert reg["by_landmarks"] >= 1 and reg["reprojection_px_max"] < 2.5
     return report
-
-
-def test_default_map_with_the_realistic_camera(tmp_path):
-    _mission(tmp_path, "realistic", timeout=240)
 
 
 @pytest.mark.slow

@@ -23,7 +23,7 @@ from protocol.messages import Done, encode
 from protocol.transport import ZenohTransport
 from uav_agent.mission import load_report
 
-CLI = [sys.executable, "-m", "uav_robots", "run"]
+CLI = [sys.executable, "-m", "uav_robots", "run", "--camera", "ideal"]   # the subject is recovery, not the camera
 
 
 class Run:

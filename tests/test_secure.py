@@ -200,7 +200,7 @@ def test_the_world_moves_only_the_robots_the_key_names(mem_world):
 
 
 def _run(args: list[str], timeout: float = 240) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "uav_robots", "run", *args], stdout=subprocess.PIPE,
+    return subprocess.Popen([sys.executable, "-m", "uav_robots", "run", "--camera", "ideal", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)})
 
 

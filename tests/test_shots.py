@@ -31,6 +31,7 @@ class Camera:
         self.pose = (0.0, 0.0, 10.0)
         self.seq = 0
         self.answer = answer
+        self.gate: threading.Event | None = None
         transport.serve(KEY, self._on)
 
     def _on(self, q) -> None:
@@ -40,6 +41,8 @@ class Camera:
 
         def later():
             time.sleep(0.05)
+            if self.gate is not None:
+                self.gate.wait()
             if self.answer is True:
                 q.reply(encode(_frame(seq, *pose)))
             elif self.answer == "garbage":
@@ -124,3 +127,29 @@ def test_a_perception_fault_reaches_the_caller():
             shots.drain()
     finally:
         shots.close()
+
+
+def test_the_caller_flies_on_with_several_images_in_flight_up_to_its_bound():
+    transport = MemoryTransport(MemoryBus())
+    camera = Camera(transport)
+    camera.gate = threading.Event()   # no image is sent before the gate opens
+    shots = Shots(lambda: transport.request_start(KEY, encode(CameraRequest()), 5.0), lambda f: None, None, 5.0,
+                  ahead=3)
+    opened = []
+
+    def open_gate():
+        time.sleep(0.3)
+        opened.append(time.monotonic())
+        camera.gate.set()
+    try:
+        t = time.monotonic()
+        for _ in range(3):
+            shots.shoot()
+        three = time.monotonic()
+        threading.Thread(target=open_gate, daemon=True).start()
+        shots.shoot()           # the fourth waits for the first image
+        four = time.monotonic()
+        frames = shots.drain()
+    finally:
+        shots.close()
+    assert three - t < 1.0 and four >= opened[0] and [f.seq for f in frames] == [1, 2, 3, 4]

@@ -38,8 +38,8 @@ def _final_cells(report) -> dict[str, list[int]]:
 def recorded(tmp_path_factory):
     """One small mission with --out: its directory and its whole report."""
     out = tmp_path_factory.mktemp("recorded")
-    res = subprocess.run(CLI + ["run", "--robots", "8", "--out", str(out)], capture_output=True, text=True,
-                         timeout=240)
+    res = subprocess.run(CLI + ["run", "--camera", "ideal", "--robots", "8", "--out", str(out)], capture_output=True,
+                         text=True, timeout=240)
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
     return out, load_report(out)
 
@@ -179,7 +179,7 @@ def test_live_view_in_a_real_browser(tmp_path):
     port = _port()
     log = open(tmp_path / "run.txt", "w")
     # 5 ticks a second, so two looks a second apart see robots move.
-    proc = subprocess.Popen(CLI + ["run", "--robots", "8", "--tick-rate", "5", "--out", str(tmp_path / "out"),
+    proc = subprocess.Popen(CLI + ["run", "--camera", "ideal", "--robots", "8", "--tick-rate", "5", "--out", str(tmp_path / "out"),
                                    "--view", str(port), "--view-hold", "60"],
                             stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
     try:

@@ -162,7 +162,7 @@ def test_bad_config_is_one_line_error(tmp_path):
 # ------------------------------------------------------------------ over Zenoh
 def start_world(hub: Hub, *extra: str) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "sim_world", "--fleet", hub.fleet, "--connect", hub.endpoint,
-                             "--robots", "3", *extra], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             "--robots", "3", "--camera", "ideal", *extra], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, start_new_session=True)
 
 
@@ -221,7 +221,7 @@ def test_world_with_its_vehicle_over_zenoh():
     """The camera follows the vehicle: on the ground the lens sits at its mount height."""
     with Hub() as hub:
         mav = free_endpoint().replace("tcp/", "udpout:")
-        proc = start_world(hub, "--mavlink", mav, "--camera", "width=320,height=240")
+        proc = start_world(hub, "--mavlink", mav, "--camera", "ideal,width=320,height=240")
         try:
             assert wait_alive(hub, hub.keys.alive_world), proc.stderr.read() if proc.poll() is not None else ""
             raw = hub.transport.request(hub.keys.camera, encode(CameraRequest()), 10)

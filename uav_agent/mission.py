@@ -404,10 +404,10 @@ class Mission:
             centre_n, centre_e = -self.info.height * c / 2, self.info.width * c / 2
             hover_alt = self._survey_alt = max(p[2] for p in poses)
             self._hover_ned = (centre_n, centre_e, hover_alt) if len(poses) > 1 else poses[-1]
-            self.flight.goto(*self._hover_ned)
-            n, e, d = self.flight.position_ned()
-            self.uav["hover"] = [round(e / c, 2), round(-n / c, 2), round(-d, 2)]
-            self._track_altitude()
+            # Perception's backlog is the survey's only wait: the vehicle flies on to the hover
+            # meanwhile, and through perception, planning and dispatch (it must be there only when
+            # the robots start moving, see `_reach_hover`).
+            self.flight.go(*self._hover_ned)
             shots.drain()
         finally:
             shots.close()
@@ -630,8 +630,16 @@ class Mission:
         for r, why in refused:
             self._event("plan-refused", [r], why)
         if first:
+            self._reach_hover()
             self.clock.lap("dispatch")
         return failed
+
+    def _reach_hover(self) -> None:
+        """Wait until the vehicle holds at the hover pose the survey sent it to."""
+        n, e, d = self.flight.goto(*self._hover_ned)
+        c = self.info.cell_size_m
+        self.uav["hover"] = [round(e / c, 2), round(-n / c, 2), round(-d, 2)]
+        self._track_altitude()
 
     def _execute(self) -> None:
         self._status("executing", tick=0, ticks=self.plan.end_tick, robots=len(self.ids), message="")

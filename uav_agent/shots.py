@@ -10,8 +10,11 @@ The request and the next flight command travel on different links (Zenoh,
 MAVLink), so the vehicle must not fly on before the shutter has opened. After
 each request `shoot` waits for a `fence`: a cheap query on the same Zenoh link,
 which a world answers after the requests sent before it (our world opens the
-shutter as a request arrives). A request is also sent only once the previous
-image has arrived, so the world's camera is idle and serves it at once. Against a
+shutter as a request arrives and renders afterwards, in order). The vehicle does
+not wait for the images themselves: up to `ahead` requests may be in flight, so
+a survey flies at the vehicle's pace while the world renders and the mission
+perceives behind it (the bound keeps a slow world from piling up requests that
+would outlast their timeout). Against a
 world that orders its queries otherwise, an image whose published pose is not
 where it was asked for is not used: it is listed in `missed`, for the caller to
 take again, holding still.
@@ -36,9 +39,9 @@ class Shots:
 
     def __init__(self, start: Callable[[], PendingRequest], on_frame: Callable[[CameraFrame], None],
                  perceive: Callable[[CameraFrame], object] | None = None, timeout_s: float = 10.0,
-                 fence: Callable[[], object] | None = None) -> None:
+                 fence: Callable[[], object] | None = None, ahead: int = 4) -> None:
         self._start, self._on_frame, self._perceive, self._fence = start, on_frame, perceive, fence
-        self._timeout_s = timeout_s
+        self._timeout_s, self._ahead = timeout_s, max(1, ahead)
         self._requests: queue.Queue[tuple[PendingRequest, Where | None] | None] = queue.Queue()
         self._frames: queue.Queue[tuple[CameraFrame, Where | None] | None] = queue.Queue()
         self._cv = threading.Condition()
@@ -54,7 +57,7 @@ class Shots:
     def shoot(self, where: Where | None = None) -> None:
         """Ask for an image; `where` is where the vehicle holds for it."""
         with self._cv:
-            self._cv.wait_for(lambda: self._arrived >= self._asked, timeout=self._timeout_s)
+            self._cv.wait_for(lambda: self._asked - self._arrived < self._ahead, timeout=self._timeout_s)
             self._asked += 1
         self._requests.put((self._start(), where))
         if self._fence is not None:

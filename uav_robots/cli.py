@@ -23,9 +23,9 @@ def _add_run(sub) -> None:
     p.add_argument("--time-scale", type=float, default=10.0,
                    help="simulated seconds per wall second for the vehicle (default 10)")
     p.add_argument("--camera", default="", metavar="[PRESET,]K=V,...",
-                   help="the world's camera: a preset (ideal, realistic) then keys over it, e.g. 'realistic', "
-                        "'realistic,blur_sigma=2' or 'width=1280,height=960,noise_std=6' (default: the ideal "
-                        "4000x3000, 90 deg camera; every key in README, 'The camera')")
+                   help="the world's camera: a preset (ideal, realistic) then keys over it, e.g. 'ideal', "
+                        "'realistic,blur_sigma=2' or 'ideal,width=1280,height=960,noise_std=6' (default: the "
+                        "realistic 4000x3000, 90 deg camera; every key in README, 'The camera')")
     add_ground_station_arguments(p)
     p.add_argument("--robots-per-process", type=int, default=None,
                    help="robots hosted per process (default: 1 up to 64 robots, then 4 pools)")

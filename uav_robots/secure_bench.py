@@ -21,7 +21,9 @@ from protocol.errors import UavRobotsError
 
 def one_run(robots: int, map_spec: str, seed: int, secure: bool, timeout_s: float) -> dict[str, Any]:
     cmd = [sys.executable, "-m", "uav_robots", "run", "--json", "--robots", str(robots), "--map", map_spec,
-           "--seed", str(seed), "--monitor-every", "0", *(["--secure"] if secure else [])]
+           "--seed", str(seed), "--monitor-every", "0", *(["--secure"] if secure else []),
+           # the camera the earlier runs in bench-results/secure used (the default became the realistic one)
+           "--camera", "ideal"]
     try:
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
     except subprocess.TimeoutExpired:

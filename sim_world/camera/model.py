@@ -59,9 +59,8 @@ PRESETS: dict[str, dict[str, float]] = {
                   "pose_sigma_m": 0.2, "yaw_sigma_deg": 1.5, "attitude_sigma_deg": 0.2, "wobble_deg": 0.3,
                   "gimbal": 0, "landmark_spacing": 12, "goal_pads": 1},
 }
-# The world's camera when --camera names no preset. The perception helper flips it to
-# "realistic" once perception copes with it.
-DEFAULT_CAMERA_PRESET = "ideal"
+# The world's camera when --camera names no preset (`--camera ideal` gives the perfect one).
+DEFAULT_CAMERA_PRESET = "realistic"
 
 
 @dataclass(frozen=True)

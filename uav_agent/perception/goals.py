@@ -31,11 +31,13 @@ def goals_in(view: View, grid: tuple[int, int]) -> set[Cell]:
     # Whole grey levels: v >= x is v >= ceil(x). One inRange pass instead of three compares.
     low = (GREEN_HUE[0], 0, math.ceil(DARK_FRACTION * bright))
     mask = cv2.inRange(hsv, low, (GREEN_HUE[1], 255, 255))
-    hue_s = hsv[..., 1][mask > 0]
-    if hue_s.size == 0:
+    # The saturations of the green-hued pixels, as a histogram (gathering them costs more).
+    sat_hist = cv2.calcHist([hsv], [1], mask, [256], [0, 256]).ravel()
+    n = int(sat_hist.sum())
+    if n == 0:
         return set()
     # The split between grey-with-noise and a pad's saturation, from this image's own pixels.
-    sat_thr = max(MIN_SATURATION, _otsu(hue_s)) if hue_s.size > 50 else MIN_SATURATION
+    sat_thr = max(MIN_SATURATION, _otsu(sat_hist)) if n > 50 else MIN_SATURATION
     mask = cv2.inRange(hsv, (low[0], math.ceil(sat_thr), low[2]), (GREEN_HUE[1], 255, 255))
     mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     if view.valid is not None:
@@ -81,9 +83,20 @@ def _components(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray, np.ndarr
         return cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
 
 
-def _otsu(values: np.ndarray) -> float:
-    t, _ = cv2.threshold(values.reshape(-1, 1).astype(np.uint8), 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
-    return float(t)
+def _otsu(hist: np.ndarray) -> float:
+    """Otsu's threshold of the whole levels a 256-bin histogram counts, as OpenCV's THRESH_OTSU
+    computes it from the values themselves: the first level of greatest between-class variance."""
+    p = np.asarray(hist, np.float64) / float(np.sum(hist))
+    levels = np.arange(p.size, dtype=np.float64)
+    q1 = np.cumsum(p)
+    m1 = np.cumsum(levels * p)
+    q2 = 1.0 - q1
+    eps = float(np.finfo(np.float32).eps)
+    ok = (np.minimum(q1, q2) >= eps) & (np.maximum(q1, q2) <= 1.0 - eps)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sigma = q1 * q2 * (m1 / q1 - (m1[-1] - m1) / q2) ** 2
+    sigma = np.where(ok, sigma, 0.0)
+    return float(np.argmax(sigma)) if sigma.max() > 0 else 0.0
 
 
 def _split(blob: np.ndarray, x0: int, y0: int, view: View, grid: tuple[int, int]) -> set[Cell]:

@@ -44,6 +44,11 @@ TILE_CONTEXT_PX = 32       # around a landmark's block in its detection tile: th
 _CAMERA_IN_BODY = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 
 MIN_CANDIDATE_STD = 15.0   # grey std inside a marker candidate (a marker's is ~100, a blank square's noise < 10)
+# One adaptive-threshold window of about two modules (a 4x4 landmark is 6 modules wide with its
+# border) instead of OpenCV's three (3, 13, 23 px): on the 450's survey, 0.7 of the detector's time,
+# the same landmarks found and the same reprojection error; under blur 2, noise 10 and lighting
+# 0.5 0.45 of its time, as many landmarks, a lower error (bench-results/mission/survey-realistic-450.md).
+THRESHOLD_WINDOW = 0.3     # of a landmark's side in pixels
 
 
 @dataclass(frozen=True, eq=False)
@@ -165,8 +170,9 @@ def homography(meta: CameraFrame, cell_size_m: float) -> np.ndarray:
 
 
 @lru_cache(maxsize=16)
-def _parameters(perimeter_rate: float) -> cv2.aruco.DetectorParameters:
+def _parameters(perimeter_rate: float, window: int) -> cv2.aruco.DetectorParameters:
     params = cv2.aruco.DetectorParameters()
+    params.adaptiveThreshWinSizeMin = params.adaptiveThreshWinSizeMax = window
     # The altitude fixes a landmark's size in pixels: skipping candidates far off it
     # (shelf edges, robot markers) makes detection several times faster.
     params.minMarkerPerimeterRate = max(0.005, 0.5 * perimeter_rate)
@@ -199,6 +205,11 @@ def _in_reach(landmarks: Landmarks, prior_inv: np.ndarray, box: tuple[int, int, 
     return np.unique(ids[near])
 
 
+def _window(side_px: float) -> int:
+    """The adaptive threshold's window for landmarks `side_px` wide: odd, 3 at least."""
+    return max(3, 2 * round(THRESHOLD_WINDOW * side_px / 2 - 0.5) + 1)
+
+
 def _detect(gray: np.ndarray, family: str, perimeter_px: float, ids: np.ndarray | None
             ) -> tuple[list[np.ndarray], list[int]]:
     """Landmark corners and ids in `gray`, decoded against only `ids` (None: the whole family).
@@ -216,7 +227,8 @@ def _detect(gray: np.ndarray, family: str, perimeter_px: float, ids: np.ndarray 
         if ids.size == 0:
             return [], []
         dictionary = cv2.aruco.Dictionary(full.bytesList[ids], full.markerSize, full.maxCorrectionBits)
-    corners, found, _ = cv2.aruco.ArucoDetector(dictionary, _parameters(rate)).detectMarkers(gray)
+    params = _parameters(rate, _window(perimeter_px / 4))
+    corners, found, _ = cv2.aruco.ArucoDetector(dictionary, params).detectMarkers(gray)
     return [c.reshape(4, 2) for c in corners], [] if found is None else ids[found.ravel()].tolist()
 
 
@@ -229,7 +241,7 @@ def _detect_tiled(gray: np.ndarray, landmarks: Landmarks, prior_inv: np.ndarray,
     threshold window, and keeps the landmarks centred in its core: every landmark is read by
     exactly one tile, with the same surroundings as in the whole image."""
     img_h, img_w = gray.shape
-    margin = math.ceil(QUIET_ZONE * side_px / 2) + TILE_CONTEXT_PX
+    margin = math.ceil(QUIET_ZONE * side_px / 2) + max(TILE_CONTEXT_PX, _window(side_px))
     core = max(4 * margin, round(2 * gate_m * f_px / max(alt_m, 1e-6)))
     nx, ny = max(1, round(img_w / core)), max(1, round(img_h / core))
     xs = np.linspace(0, img_w, nx + 1).round().astype(int)
