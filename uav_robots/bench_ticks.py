@@ -141,7 +141,7 @@ class Measured:
         return self.ticks / self.seconds if self.seconds > 0 else 0.0
 
 
-def run_mission(n: int, per_process: int, ticks: int, tmp: Path) -> Measured:
+def run_mission(n: int, per_process: int, ticks: int, tmp: Path, moves: str = "ahead") -> Measured:
     """Real world and robot processes execute the lane plan; ticks/s over the timed ticks."""
     from protocol.messages import MissionEnd, Plan, Record, RecordRequest, Tick, decode, encode
     from uav_agent.fleet import FleetLink
@@ -160,7 +160,7 @@ def run_mission(n: int, per_process: int, ticks: int, tmp: Path) -> Measured:
                                      "--robots", str(n), "--scen", str(scen), "--mavlink", "none",
                                      "--camera", "ideal,width=64,height=48"], tmp / f"world-{n}.log")
             for g in hosting(n, per_process):
-                kids.spawn("robot_agents", [*common, "--ids", format_ids(g)], tmp / f"robots-{n}-{g[0]}.log")
+                kids.spawn("robot_agents", [*common, "--ids", format_ids(g), "--moves", moves], tmp / f"robots-{n}-{g[0]}.log")
             ids = list(range(n))
             fl.wait_until(lambda: fl.world_alive and len(fl.alive) == n, READY_TIMEOUT_S,
                           lambda: f"{len(fl.alive)}/{n} robots and {'a' if fl.world_alive else 'no'} world ready "
@@ -327,7 +327,7 @@ def run(args: argparse.Namespace) -> int:
                 procs = len(hosting(n, per))
                 _print(f"{n} robots, {_hosting_text(n, per)}: mission ...")
                 try:
-                    m = run_mission(n, per, args.ticks, tmp)
+                    m = run_mission(n, per, args.ticks, tmp, args.moves)
                 except MissionError as exc:
                     raise UavRobotsError(f"bench ticks, {n} robots in {procs} process(es): {exc}") from None
                 _print(f"  {m.rate:.1f} ticks/s; bare barrier with {procs} process(es) ...")
@@ -351,6 +351,7 @@ def run(args: argparse.Namespace) -> int:
         f"Boundary: in-process ticks/s of the lockstep loop, {args.ticks - WARMUP_TICKS} timed ticks after "
         f"{WARMUP_TICKS} warm-up ticks; from the hub's put of Tick k to every robot's RobotState of tick k, "
         "through real robot and world processes over Zenoh on loopback (start-up, plans and shut-down not timed).",
+        f"Moves: {args.moves} (robots {'put each move one tick ahead and are paced by the world' if args.moves == 'ahead' else 'ask the world on each Tick'}; docs/protocol.md).",
         "Plan: every robot paces its own lane (8 cells, back and forth), so every tick moves every robot and the "
         "world judges every move; collisions and refused moves are the world's record (any makes the run fail), "
         "and every robot must end where the plan puts it.",
@@ -379,6 +380,8 @@ def add_parser(sub) -> None:
                    help="one process per robot is measured up to this many robots (default 64, as `uav-robots run`)")
     p.add_argument("--pools", type=int, default=4,
                    help="robot processes when robots share them, measured at every count (default 4)")
+    p.add_argument("--moves", choices=("ahead", "query"), default="ahead",
+                   help="how the robots move: ahead (one wake a tick, default) or query (ask on each Tick)")
     p.add_argument("--out", default="bench-out", help="directory for the markdown and CSV (default bench-out/)")
 
 
