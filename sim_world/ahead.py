@@ -67,6 +67,10 @@ class AheadDesk:
             for old in [t for t in self.pending if t < tick.k]:
                 del self.pending[old]   # moves for a tick that was never put: nothing to answer
             moves = self.pending.pop(tick.k, {})
+        with self.desk.cv:
+            gone = set(self.desk.gone)
+        # A robot that died after putting its move must not move: a querying robot that dies asks nothing.
+        moves = {r: m for r, m in moves.items() if r not in gone}
         if moves:
             self._submit(tick.k, tick.plan_id, tick.batch_states, list(moves.values()))
 

@@ -4,7 +4,9 @@ It owns what physically exists: the floor, where every robot stands, the goal
 markers and the multicopter. It serves, under `uavr/<fleet>/world/`:
 `info` (site calibration), `camera` (the image seen from the vehicle's current
 pose), `move` (one tick's moves, judged together) and `record` (what happened,
-for scoring). It announces `alive/world` once all of them are declared.
+for scoring); it also takes moves put ahead (`ahead/<ids>`, judged when the
+UAV's Tick comes, answered on `judged/<ids>`: sim_world/ahead.py). It announces
+`alive/world` once all of them are declared.
 
     python -m sim_world --fleet F --connect tcp/127.0.0.1:7447 --robots 8
 """
