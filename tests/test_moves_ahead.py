@@ -136,6 +136,20 @@ def test_the_world_judges_moves_put_ahead_only_for_the_robots_their_key_names(tm
         world.close()
 
 
+def test_a_robot_that_vanished_after_putting_its_move_does_not_move(tmp_path):
+    world, probe, keys, got = _memory_world(tmp_path)
+    try:
+        token = probe.announce(keys.alive_robot(1))
+        probe.put(keys.ahead_as([0]), encode(MoveAhead(tick=1, plan_id="p", moves=[(0, (0, 0), (1, 0))])))
+        probe.put(keys.ahead_as([1]), encode(MoveAhead(tick=1, plan_id="p", moves=[(1, (0, 1), (1, 1))])))
+        token.close()   # robot 1 dies before the Tick: a querying robot would have asked nothing
+        probe.put(keys.tick, encode(Tick(k=1, ticks=3, plan_id="p")))
+        assert [j.results for _k, j in got] == [[(0, True, (1, 0), "")]]
+        assert world.judge.positions[1] == (0, 1)
+    finally:
+        world.close()
+
+
 def test_access_control_lets_a_robot_put_moves_ahead_and_read_answers_only_under_its_own_ids():
     from protocol.security import WORLD, Identity, access_control, robot_identity
 
