@@ -3,7 +3,8 @@
 Each hosted robot subscribes to its plan key, the fleet's tick and the mission
 end BEFORE it declares its liveliness token, so the UAV, which publishes only
 after it sees the token, never sends into the void (NOTES-transports.md,
-pitfall 3). Work runs on one worker thread, never inside a Zenoh callback. On a
+pitfall 3). Work runs on one worker thread, never inside a Zenoh callback (but for
+the world's answers to moves put ahead, below, which only lead to puts). On a
 tick a lone robot sends one MoveRequest; a pool sends all its robots' moves in
 one MoveBatch, so a pool of 500 robots costs one query per tick, not 500.
 
@@ -214,29 +215,16 @@ class RobotPool(Lifecycle):
         if not steps:
             return
         results = self._ask_world(tick.k, steps)
-        # A pool answers a UAV that reads StateBatch with one put, not one per robot: at 1,000
-        # robots the UAV's decoding of single states was most of a tick.
-        batch = tick.batch_states and len(self.machines) > 1
-        states: list[RobotState] = []
+        outcomes: list[tuple[RobotState, Done | None]] = []
         for r, step in steps.items():
             m = self.machines[r]
             result = results.get(r)
             if result is None:
-                state = m.on_no_result(step, f"no answer from the world's move service for tick {tick.k}")
-                done = None
+                outcomes.append((m.on_no_result(step, f"no answer from the world's move service for tick {tick.k}"),
+                                 None))
             else:
-                state, done = m.on_move_result(result, tick.plan_id)
-            if batch:
-                states.append(state)
-            else:
-                self._put(r, self.keys.state(r), state)
-            if done is not None:
-                self._put(r, self.keys.done(r), done)
-        if states:
-            self._states_seq += 1
-            self.transport.put(self.states_key, encode(StateBatch(
-                tick=tick.k, states=[(s.robot, s.cell, s.status, s.plan_id, s.error) for s in states],
-                seq=self._states_seq)))
+                outcomes.append(m.on_move_result(result, tick.plan_id))
+        self._publish(tick.k, tick.batch_states, outcomes)
 
     # ------------------------------------------------------------ moving ahead
     def _put_ahead(self, k: int, robots: Sequence[int]) -> None:
@@ -273,6 +261,9 @@ class RobotPool(Lifecycle):
         self._publish(k, judged.batch_states, outcomes)
 
     def _publish(self, k: int, batch_states: bool, outcomes: list[tuple[RobotState, Done | None]]) -> None:
+        """Each robot's state of tick k, then its Done if any."""
+        # A pool answers a UAV that reads StateBatch with one put, not one per robot: at 1,000
+        # robots the UAV's decoding of single states was most of a tick.
         batch = batch_states and len(self.machines) > 1
         states: list[RobotState] = []
         for state, done in outcomes:
