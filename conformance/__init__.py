@@ -22,8 +22,8 @@ from typing import Any, Callable
 from protocol.config import hub_config
 from protocol.errors import MissionError, ProtocolError
 from protocol.keys import Keys, new_fleet_name, robot_id_from_key
-from protocol.messages import (Done, MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Plan, PlanAck,
-                               RobotState, Tick, decode, encode)
+from protocol.messages import (Done, MissionEnd, MoveAhead, MoveBatch, MoveBatchResult, MoveRequest, MoveResult,
+                               MovesJudged, Plan, PlanAck, RobotState, Tick, decode, encode)
 from protocol.transport import Handle, IncomingQuery, Transport, ZenohTransport
 
 REPO = Path(__file__).resolve().parents[1]
@@ -200,12 +200,55 @@ class FakeWorld(Waiter):
     positions: dict[int, tuple[int, int]] = field(default_factory=dict)
     answer: bool = True
     garbage: bool = False      # answer with bytes that do not decode
+    aheads: list[tuple[str, MoveAhead]] = field(default_factory=list)   # (key, message) of each MoveAhead put
 
     def __post_init__(self) -> None:
         Waiter.__init__(self)
         self._handle = self.transport.serve(self.keys.move, self._on_move)
         self._by_identity = self.transport.serve(self.keys.moves_by_identity, self._on_move)
+        # Moving ahead: moves are kept until their Tick, then judged and answered per sender.
+        # Inline, so a move and the Tick after it are taken in the order they came.
+        self._ahead = self.transport.subscribe(self.keys.all_ahead, self._on_ahead, inline=True)
+        self._tick = self.transport.subscribe(self.keys.tick, self._on_tick, inline=True)
         self._token = self.transport.announce(self.keys.alive_world)
+
+    def _on_ahead(self, key: str, payload: bytes) -> None:
+        try:
+            msg = decode(payload, MoveAhead)
+        except ProtocolError:
+            return   # the robot's moves are judged by what the robot put: garbage is never answered
+        with self.cv:
+            self.aheads.append((key, msg))
+            self.cv.notify_all()
+
+    def _on_tick(self, _key: str, payload: bytes) -> None:
+        try:
+            tick = decode(payload, Tick)
+        except ProtocolError:
+            return   # the suite's own garbage on the tick key
+        with self.cv:
+            latest: dict[int, tuple[str, str, tuple, tuple]] = {}
+            for key, msg in self.aheads:   # the last put for a robot and tick wins
+                if msg.tick == tick.k:
+                    for r, frm, to in msg.moves:
+                        latest[r] = (key.rsplit("/", 1)[1], msg.plan_id, tuple(frm), tuple(to))
+        per_label: dict[str, list[MoveResult]] = {}
+        for r, (label, plan_id, frm, to) in latest.items():
+            stay = plan_id != tick.plan_id
+            per_label.setdefault(label, []).append(
+                self._judge(MoveRequest(robot=r, tick=tick.k, frm=frm, to=frm if stay else to)))
+        for label, results in per_label.items():
+            self.transport.put(f"{self.keys.prefix}/world/judged/{label}", encode(MovesJudged(
+                tick=tick.k, plan_id=tick.plan_id, results=[(m.robot, m.accepted, m.cell, m.reason) for m in results],
+                batch_states=tick.batch_states)))
+
+    def ahead_for(self, robot: int, tick: int, timeout: float) -> list[tuple[str, MoveAhead]]:
+        """The MoveAheads naming `robot` for `tick` (waits up to `timeout` for the first)."""
+        def of() -> list[tuple[str, MoveAhead]]:
+            return [(k, m) for k, m in self.aheads if m.tick == tick and any(x[0] == robot for x in m.moves)]
+        self.until(lambda: bool(of()), timeout)
+        with self.cv:
+            return of()
 
     def _on_move(self, q: IncomingQuery) -> None:
         if b'"MoveBatch"' in q.payload[:200]:
@@ -244,6 +287,8 @@ class FakeWorld(Waiter):
         self._token.close()
         self._handle.close()
         self._by_identity.close()
+        self._ahead.close()
+        self._tick.close()
 
 
 def robot_command(template: str, robot: int | list[int], fleet: str, endpoint: str) -> list[str]:

@@ -21,6 +21,10 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     group.addoption("--robot-pool-cmd", default=None,
                     help="command line of a pool hosting several robots; placeholders {ids} (comma-separated) "
                          "{fleet} {endpoint} (default: our pool when --robot-cmd is ours; else the pool test is skipped)")
+    group.addoption("--robot-ahead-cmd", default=None,
+                    help="command line of the robot moving ahead (optional, docs/protocol.md 'Moving ahead'); "
+                         "placeholders as --robot-cmd (default: ours with --moves ahead when --robot-cmd is ours; "
+                         "else the test of that mode is skipped)")
     group.addoption("--robot-id", type=int, default=7, help="the robot id to start it with")
     group.addoption("--robot-timeout", type=float, default=10.0,
                     help="seconds a robot gets to come alive (and to answer anything)")
@@ -52,6 +56,16 @@ def pool_cmd(request: pytest.FixtureRequest) -> str:
         cmd = DEFAULT_POOL_CMD
     if not cmd:
         pytest.skip("no --robot-pool-cmd given: the implementation is checked as a single robot only")
+    return cmd
+
+
+@pytest.fixture
+def ahead_cmd(request: pytest.FixtureRequest) -> str:
+    cmd = request.config.getoption("--robot-ahead-cmd")
+    if cmd is None and request.config.getoption("--robot-cmd") == DEFAULT_ROBOT_CMD:
+        cmd = DEFAULT_ROBOT_CMD + " --moves ahead"
+    if not cmd:
+        pytest.skip("no --robot-ahead-cmd given: moving ahead is optional, and not checked")
     return cmd
 
 

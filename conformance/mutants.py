@@ -185,6 +185,19 @@ def _robot_patches() -> dict[str, Patch]:
         first = min(steps)
         return ask_world(self, k, {first: steps[first]})
 
+    on_judged = RobotPool._on_judged
+
+    def states_first(self, payload):
+        held = []
+        self._put_ahead = lambda k, robots: held.append((k, robots))
+        try:
+            on_judged(self, payload)
+        finally:
+            del self._put_ahead
+        time.sleep(0.2)   # past the UAV's barrier, as a busy robot would be
+        for k, robots in held:
+            self._put_ahead(k, robots)
+
     def ignore_sigterm(self):
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
@@ -225,6 +238,7 @@ def _robot_patches() -> dict[str, Patch]:
         "R31": setattr_(RobotPool, "_on_end", lambda self, key, payload: None),
         "R32": setattr_(agent.Lifecycle, "stop_on_signals", ignore_sigterm),
         "R33": setattr_(RobotPool, "_on_uav", lambda self, key, alive: None),
+        "R34": setattr_(RobotPool, "_on_judged", states_first),
     }
 
 

@@ -117,6 +117,11 @@ RULES: tuple[Rule, ...] = (
     _r(32, E, "exits within 5 s of SIGTERM", ("test_exits_on_sigterm",), "ignores SIGTERM"),
     _r(33, E, "exits within 5 s when `alive/uav` disappears after having been seen",
        ("test_exits_when_the_uav_goes_away",), "ignores the UAV's token"),
+    _r(34, P, "moving ahead (optional): puts the move of a plan's first tick before its `PlanAck` and the move of "
+              "tick k+1 before its state of k, as `MoveAhead` on `P/world/ahead/<ids>` naming its plan; takes its "
+              "cell from the world's `MovesJudged`, asks no query; a replan puts a new move for the next tick",
+       ("test_a_robot_moving_ahead_puts_each_move_before_what_the_uav_waits_for",),
+       "puts its state of tick k before its move of k+1"),
     # ------------------------------------------------------------ UAVs
     _u(1, S, "declares `alive/uav` before it sends any plan and withdraws it when it exits",
        ("test_uav_token_is_up_before_any_plan_and_gone_after_exit",), "never declares `alive/uav`"),

@@ -6,6 +6,7 @@ port, a fake UAV, a fake move service) and starts the robot under test from
 """
 from __future__ import annotations
 
+import json
 import signal
 import time
 
@@ -387,3 +388,68 @@ def test_a_pool_keeps_each_robots_contract(spawn, pool_cmd, uav, world, rid, tim
         assert mine == list(range(1, len(mine) + 1)), f"robot {r} in a pool numbers its own messages: {mine}"
     batches = list(world.batch_seqs)
     assert batches == list(range(1, len(batches) + 1)), f"the pool's MoveBatch seq {batches}, expected 1, 2, 3, ..."
+
+
+# ---------------------------------------------------------------- moving ahead
+def _at(order: list, item: tuple, timeout: float) -> int:
+    """Where `item` is in `order` (the router's arrival order), waiting for it up to `timeout`."""
+    deadline = time.monotonic() + timeout
+    while item not in order:
+        assert time.monotonic() < deadline, f"{item} never came; the robot put {order}"
+        time.sleep(0.01)
+    return order.index(item)
+
+
+def test_a_robot_moving_ahead_puts_each_move_before_what_the_uav_waits_for(spawn, ahead_cmd, hub, uav, world, rid,
+                                                                           timeout):
+    """docs/protocol.md, Moving ahead: the move of a plan's first tick before the PlanAck, the move of
+    k+1 before the state of k, each on P/world/ahead/<id> naming the plan; the world's MovesJudged,
+    not a query, gives the robot its cell; a replan between ticks puts a new move for the next tick."""
+    keys = hub.keys
+    order: list[tuple[str, int]] = []   # (key, tick or -1) of the robot's puts, as the router got them
+
+    def seen(key: str, payload: bytes) -> None:
+        tick = -1
+        if "/ahead/" in key or key.endswith("/state"):
+            try:
+                tick = json.loads(payload)["tick"]
+            except (ValueError, KeyError, TypeError):
+                pass
+        order.append((key, tick))
+    h = hub.transport.subscribe(f"{keys.prefix}/**", seen, inline=True)
+    try:
+        proc = spawn(ahead_cmd)
+        assert uav.until(lambda: rid in uav.alive or proc.poll() is not None, timeout), "no liveliness token"
+        path = [(2, 2), (3, 2), (3, 3)]
+        _accepted(uav, rid, "pa", path, timeout)
+        first = world.ahead_for(rid, 1, timeout)
+        assert first, "no MoveAhead for tick 1 after the plan was accepted"
+        key, msg = first[-1]
+        assert key == keys.ahead_as([rid]) and msg.plan_id == "pa", f"MoveAhead on {key} naming {msg.plan_id!r}"
+        assert [tuple(map(tuple, m[1:])) for m in msg.moves if m[0] == rid] == [((2, 2), (3, 2))], msg.moves
+        assert _at(order, (key, 1), timeout) < _at(order, (keys.ack(rid), -1), timeout), \
+            f"the move came after the PlanAck: {order}"
+        uav.tick(1, 2, "pa")
+        st = uav.state_at(rid, 1, timeout)
+        assert st is not None and tuple(st.cell) == (3, 2), f"state of tick 1: {st}"
+        second = world.ahead_for(rid, 2, timeout)
+        assert second and [tuple(map(tuple, m[1:])) for m in second[-1][1].moves] == [((3, 2), (3, 3))], second
+        assert _at(order, (key, 2), timeout) < _at(order, (keys.state(rid), 1), timeout), f"the move of tick 2 came after the " \
+            f"state of tick 1: {order}"
+        world.refuse.add((rid, 2))
+        uav.tick(2, 2, "pa")
+        st = uav.state_at(rid, 2, timeout)
+        assert st is not None and tuple(st.cell) == (3, 2), f"a refused move: the robot is where the world says: {st}"
+        assert world.ahead_for(rid, 3, timeout), "no MoveAhead for tick 3"
+        # A replan between ticks: its move for tick 3 replaces the one already put, before its ack.
+        uav.plan(rid, "pb", [(3, 2), (2, 2)], start_tick=2)
+        ack = uav.ack_for(rid, "pb", timeout)
+        assert ack is not None and ack.ok, f"the replan was not accepted: {ack}"
+        third = [m for _k, m in world.ahead_for(rid, 3, timeout) if m.plan_id == "pb"]
+        assert third and [tuple(map(tuple, m[1:])) for m in third[-1].moves] == [((3, 2), (2, 2))], third
+        uav.tick(3, 3, "pb")
+        st = uav.state_at(rid, 3, timeout)
+        assert st is not None and tuple(st.cell) == (2, 2) and st.plan_id == "pb", f"state of tick 3: {st}"
+        assert not world.request_seqs and not world.batch_seqs, "a robot moving ahead asked the world too"
+    finally:
+        h.close()

@@ -127,6 +127,18 @@ class Keys:
     def moves_by_identity(self) -> str:
         return f"{self.move}/*"
 
+    def ahead_as(self, ids: Sequence[int]) -> str:
+        """Where the robots `ids` put their MoveAhead (a put, not a query; the key names who sends)."""
+        return f"{self.prefix}/world/ahead/{format_ids(ids)}"
+
+    @property
+    def all_ahead(self) -> str:
+        return f"{self.prefix}/world/ahead/*"
+
+    def judged_as(self, ids: Sequence[int]) -> str:
+        """Where the world puts the MovesJudged answering the MoveAhead of `ids` (the same label)."""
+        return f"{self.prefix}/world/judged/{format_ids(ids)}"
+
     @property
     def world_info(self) -> str:
         return f"{self.prefix}/world/info"
@@ -203,4 +215,13 @@ def ids_of_move_key(keys: Keys, key: str) -> list[int] | None:
     label = key[len(keys.move) + 1:] if key.startswith(keys.move + "/") else ""
     if not label or len(label) > MAX_IDS_LABEL:
         raise UavRobotsError(f"move key {key[:80]!r} does not name robot ids")
+    return parse_ids(label)
+
+
+def ids_of_ahead_key(keys: Keys, key: str) -> list[int]:
+    """The robots a MoveAhead's key names; UavRobotsError for a key that names no valid ids."""
+    head = f"{keys.prefix}/world/ahead/"
+    label = key[len(head):] if key.startswith(head) else ""
+    if not label or len(label) > MAX_IDS_LABEL:
+        raise UavRobotsError(f"move-ahead key {key[:80]!r} does not name robot ids")
     return parse_ids(label)

@@ -165,6 +165,32 @@ class MoveBatchResult(Message):
 
 
 @dataclass(frozen=True)
+class MoveAhead(Message):
+    """Robot(s) -> world, put (not asked) on `world/ahead/<ids>` before the tick: the moves of tick `tick`.
+
+    moves: (robot, frm, to) each. `plan_id` is the plan they follow: if `Tick(tick)` names
+    another plan, each is judged as a stay. Of several for one robot and tick the last put wins.
+    Answered, once the world has judged the tick, by one MovesJudged on `world/judged/<ids>`.
+    """
+    tick: Annotated[int, Range(1, MAX_TICKS)]
+    plan_id: Text
+    moves: Annotated[list[tuple[RobotId, Cell, Cell]], MaxLen(MAX_ROBOTS)]
+
+
+@dataclass(frozen=True)
+class MovesJudged(Message):
+    """World -> the robots of `world/judged/<ids>`: the world's answer to their MoveAhead of one tick.
+
+    results: (robot, accepted, cell, reason) for every move of theirs judged at `tick`; `plan_id`
+    and `batch_states` are the Tick's, so that a robot moving ahead need not read the Tick itself.
+    """
+    tick: TickNo
+    plan_id: Text
+    results: Annotated[list[tuple[RobotId, bool, Cell, Text]], MaxLen(MAX_ROBOTS)]
+    batch_states: bool = False
+
+
+@dataclass(frozen=True)
 class RobotState(Message):
     robot: RobotId
     tick: TickNo
@@ -318,7 +344,7 @@ class VehiclePose(Message):
 
 MESSAGE_TYPES: dict[str, type[Message]] = {
     cls.__name__: cls
-    for cls in (Plan, PlanAck, Tick, MoveRequest, MoveResult, MoveBatch, MoveBatchResult, RobotState, StateBatch, Done, CameraRequest,
+    for cls in (Plan, PlanAck, Tick, MoveRequest, MoveResult, MoveBatch, MoveBatchResult, MoveAhead, MovesJudged, RobotState, StateBatch, Done, CameraRequest,
                 CameraFrame, WorldInfoRequest, WorldInfo, RecordRequest, Record, MissionStatus, MissionEnd,
                 MissionEvent, VehiclePose)
 }

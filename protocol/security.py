@@ -66,8 +66,12 @@ def _grants(k: Keys, who: Identity) -> list[tuple[list[str], str, list[str]]]:
         return [
             (["declare_queryable", "reply"], "ingress", [f"{k.prefix}/world/**"]),
             (["query"], "egress", [f"{k.prefix}/world/**"]),
-            (["declare_subscriber"], "ingress", [k.mission_end]),
-            (["put"], "egress", [k.mission_end]),
+            # Moves put ahead (a put, not a query) and the tick, to judge them when it comes;
+            # the answers are put back, one key per sender.
+            (["declare_subscriber"], "ingress", [k.mission_end, k.tick, k.all_ahead]),
+            (["put"], "egress", [k.mission_end, k.tick, k.all_ahead]),
+            (["put"], "ingress", [f"{k.prefix}/world/judged/*"]),
+            (["declare_subscriber"], "egress", [f"{k.prefix}/world/judged/*"]),
             (["liveliness_token"], "ingress", [k.alive_world]),
             (["declare_liveliness_subscriber", "liveliness_query"], "ingress", [*alive_uav, k.alive_robots]),
             (["liveliness_token", "reply"], "egress", [*alive_uav, k.alive_robots]),
@@ -76,20 +80,22 @@ def _grants(k: Keys, who: Identity) -> list[tuple[list[str], str, list[str]]]:
     plans = [k.plan(r) for r in ids]
     move = [k.move_as(ids)]
     return [
-        (["put"], "ingress", [key for r in ids for key in (k.ack(r), k.state(r), k.done(r))] + [k.states_as(ids)]),
+        (["put"], "ingress", [key for r in ids for key in (k.ack(r), k.state(r), k.done(r))]
+         + [k.states_as(ids), k.ahead_as(ids)]),
         (["liveliness_token"], "ingress", [k.alive_robot(r) for r in ids]),
         # A pool subscribes to every plan with one wildcard (one callback thread); egress still
         # delivers only its own robots' plans.
         (["declare_subscriber"], "ingress", [*(plans if len(ids) == 1 else [f"{k.prefix}/robot/*/plan"]),
-                                             k.tick, k.mission_end]),
-        (["put"], "egress", [*plans, k.tick, k.mission_end]),
+                                             k.tick, k.mission_end, k.judged_as(ids)]),
+        (["put"], "egress", [*plans, k.tick, k.mission_end, k.judged_as(ids)]),
         (["declare_liveliness_subscriber", "liveliness_query"], "ingress", alive_uav),
         (["liveliness_token", "reply"], "egress", alive_uav),
         (["query"], "ingress", move),
         (["reply"], "egress", move),
         # Where its puts and queries are wanted: a client sends nothing towards a key nobody declared.
         (["declare_subscriber"], "egress", [f"{k.prefix}/robot/*/{x}" for x in ("ack", "state", "done")]
-         + [key for r in ids for key in (k.ack(r), k.state(r), k.done(r))] + [k.all_state_batches, k.states_as(ids)]),
+         + [key for r in ids for key in (k.ack(r), k.state(r), k.done(r))] + [k.all_state_batches, k.states_as(ids)]
+         + [k.all_ahead, k.ahead_as(ids)]),
         (["declare_queryable"], "egress", [k.move, k.moves_by_identity]),
     ]
 

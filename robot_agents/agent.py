@@ -3,9 +3,15 @@
 Each hosted robot subscribes to its plan key, the fleet's tick and the mission
 end BEFORE it declares its liveliness token, so the UAV, which publishes only
 after it sees the token, never sends into the void (NOTES-transports.md,
-pitfall 3). Work runs on one worker thread, never inside a Zenoh callback. On a
+pitfall 3). Work runs on one worker thread, never inside a Zenoh callback (but for
+the world's answers to moves put ahead, below, which only lead to puts). On a
 tick a lone robot sends one MoveRequest; a pool sends all its robots' moves in
 one MoveBatch, so a pool of 500 robots costs one query per tick, not 500.
+
+With `--moves ahead` the robots wake once a tick, not twice: on the world's MovesJudged for
+tick k they put their moves for k+1 (one MoveAhead), then their states of k; the world judges
+those moves when the UAV's Tick(k+1) comes (docs/protocol.md, "Moving ahead"). A process
+with injected faults keeps the query mode: its faults are timed by the Tick it then reads.
 
     python -m robot_agents --ids 0-3 --fleet F --connect tcp/127.0.0.1:7447
 """
@@ -22,8 +28,8 @@ from protocol.config import add_session_arguments
 from protocol.errors import ProtocolError, UavRobotsError
 from protocol.keys import DEFAULT_FLEET, Keys, format_ids, parse_ids, robot_id_from_key  # noqa: F401 - re-exported
 from protocol.log import Throttled
-from protocol.messages import (Done, MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Plan, RobotState,
-                               StateBatch, Tick, decode, encode)
+from protocol.messages import (Done, MissionEnd, MoveAhead, MoveBatch, MoveBatchResult, MoveRequest, MoveResult,
+                               MovesJudged, Plan, RobotState, StateBatch, Tick, decode, encode)
 from protocol.process import Lifecycle
 from protocol.transport import Transport, open_session
 
@@ -43,7 +49,7 @@ class RobotPool(Lifecycle):
 
     def __init__(self, ids: Sequence[int], transport: Transport, fleet: str, connectivity: int = 4,
                  move_timeout_s: float = MOVE_TIMEOUT_S, stop: threading.Event | None = None,
-                 faults: Sequence[Fault] = ()) -> None:
+                 faults: Sequence[Fault] = (), ahead: bool = False) -> None:
         super().__init__(stop)
         if not ids:
             raise UavRobotsError("a robot pool needs at least one robot id")
@@ -67,6 +73,10 @@ class RobotPool(Lifecycle):
         self.faults = {f.robot: f for f in faults if f.robot in self.machines}
         self.dead: set[int] = set()
         self._tokens: dict[int, Any] = {}
+        self.ahead = ahead and not self.faults
+        self.ahead_key = self.keys.ahead_as(list(self.machines))
+        self._ahead_seq = 0
+        self._mutex = threading.Lock()   # the machines: the worker's plans and the transport's answers
 
     # ------------------------------------------------------------ wiring
     def start(self) -> None:
@@ -77,8 +87,15 @@ class RobotPool(Lifecycle):
         else:
             # One wildcard subscription, not one per robot: Zenoh's Python binding runs a thread per callback.
             self.keep(self.transport.subscribe(f"{k.prefix}/robot/*/plan", self._on_any_plan))
-        self.keep(self.transport.subscribe(k.tick, lambda _k, p: self._work.put(("tick", p)), inline=True),
-                  self.transport.subscribe(k.mission_end, self._on_end),
+        if self.ahead:
+            # The world's answers, not the Tick, pace a robot that moves ahead: one wake a tick, taken
+            # on the transport's thread (it only puts, never waits), not handed to the worker: the
+            # hand-over cost about as much as the rest of the tick.
+            self.keep(self.transport.subscribe(k.judged_as(list(self.machines)),
+                                               lambda _k, p: self._handle("judged", p), inline=True))
+        else:
+            self.keep(self.transport.subscribe(k.tick, lambda _k, p: self._work.put(("tick", p)), inline=True))
+        self.keep(self.transport.subscribe(k.mission_end, self._on_end),
                   self.transport.watch_alive(k.alive_uav, self._on_uav))
         self._worker.start()
         # Last: the tokens tell the UAV that everything above is listening.
@@ -121,10 +138,15 @@ class RobotPool(Lifecycle):
             item = self._work.get()
             if item is None:
                 return
-            kind, data = item
+            self._handle(*item)
+
+    def _handle(self, kind: str, data: Any) -> None:
+        with self._mutex:
             try:
                 if kind == "plan":
                     self._on_plan(*data)
+                elif kind == "judged":
+                    self._on_judged(data)
                 else:
                     self._on_tick(data)
             except ProtocolError as exc:
@@ -146,6 +168,10 @@ class RobotPool(Lifecycle):
         ack = m.on_plan(plan)
         if not ack.ok:
             _warn(f"robot {robot}: refused plan {plan.plan_id}: {ack.error}")
+        elif self.ahead:
+            # Before the ack: the UAV puts the plan's first tick only after every ack, and the
+            # world must hold this move (replacing one sent ahead under the old plan) by then.
+            self._put_ahead(max(m.seen_tick, m.base) + 1, [robot])
         self._put(robot, self.keys.ack(robot), ack)
         fault = self.faults.get(robot)
         if ack.ok and fault is not None and fault.kind == "liar":
@@ -189,28 +215,68 @@ class RobotPool(Lifecycle):
         if not steps:
             return
         results = self._ask_world(tick.k, steps)
-        # A pool answers a UAV that reads StateBatch with one put, not one per robot: at 1,000
-        # robots the UAV's decoding of single states was most of a tick.
-        batch = tick.batch_states and len(self.machines) > 1
-        states: list[RobotState] = []
+        outcomes: list[tuple[RobotState, Done | None]] = []
         for r, step in steps.items():
             m = self.machines[r]
             result = results.get(r)
             if result is None:
-                state = m.on_no_result(step, f"no answer from the world's move service for tick {tick.k}")
-                done = None
+                outcomes.append((m.on_no_result(step, f"no answer from the world's move service for tick {tick.k}"),
+                                 None))
             else:
-                state, done = m.on_move_result(result, tick.plan_id)
+                outcomes.append(m.on_move_result(result, tick.plan_id))
+        self._publish(tick.k, tick.batch_states, outcomes)
+
+    # ------------------------------------------------------------ moving ahead
+    def _put_ahead(self, k: int, robots: Sequence[int]) -> None:
+        """The moves of tick k of `robots`, one MoveAhead per plan they hold (usually one)."""
+        by_plan: dict[str, list[tuple[int, Any, Any]]] = {}
+        for r in robots:
+            m = self.machines[r]
+            step = m.target(k)
+            if step is not None:
+                by_plan.setdefault(m.plan.plan_id if m.plan else "", []).append((r, step.frm, step.to))
+        for plan_id, moves in by_plan.items():
+            self._ahead_seq += 1
+            self.transport.put(self.ahead_key, encode(MoveAhead(tick=k, plan_id=plan_id, moves=moves,
+                                                                seq=self._ahead_seq)))
+
+    def _on_judged(self, payload: bytes) -> None:
+        """The world's answer for tick k: first the moves of k+1 (so the world holds them before the
+        UAV can put Tick(k+1)), then the states of k and any Done."""
+        judged = decode(payload, MovesJudged)
+        k = judged.tick
+        fresh: list[tuple[RobotMachine, MoveResult]] = []
+        for robot, accepted, cell, reason in judged.results:
+            m = self.machines.get(robot)
+            if m is None or robot in self.dead or k <= m.last_tick:
+                continue   # not ours, or an answer already taken
+            fresh.append((m, MoveResult(robot=robot, tick=k, accepted=accepted, cell=cell, reason=reason)))
+        if not fresh:
+            return
+        outcomes = []
+        for m, res in fresh:
+            m.seen_tick = max(m.seen_tick, k)
+            outcomes.append(m.on_move_result(res, judged.plan_id))
+        self._put_ahead(k + 1, [m.robot_id for m, _ in fresh])
+        self._publish(k, judged.batch_states, outcomes)
+
+    def _publish(self, k: int, batch_states: bool, outcomes: list[tuple[RobotState, Done | None]]) -> None:
+        """Each robot's state of tick k, then its Done if any."""
+        # A pool answers a UAV that reads StateBatch with one put, not one per robot: at 1,000
+        # robots the UAV's decoding of single states was most of a tick.
+        batch = batch_states and len(self.machines) > 1
+        states: list[RobotState] = []
+        for state, done in outcomes:
             if batch:
                 states.append(state)
             else:
-                self._put(r, self.keys.state(r), state)
+                self._put(state.robot, self.keys.state(state.robot), state)
             if done is not None:
-                self._put(r, self.keys.done(r), done)
+                self._put(done.robot, self.keys.done(done.robot), done)
         if states:
             self._states_seq += 1
             self.transport.put(self.states_key, encode(StateBatch(
-                tick=tick.k, states=[(s.robot, s.cell, s.status, s.plan_id, s.error) for s in states],
+                tick=k, states=[(s.robot, s.cell, s.status, s.plan_id, s.error) for s in states],
                 seq=self._states_seq)))
 
     def _ask_world(self, k: int, steps: dict[int, Step]) -> dict[int, MoveResult]:
@@ -253,9 +319,10 @@ class RobotPool(Lifecycle):
 
 def run_robots(ids: Sequence[int], transport: Transport, fleet: str, connectivity: int = 4,
                move_timeout_s: float = MOVE_TIMEOUT_S, stop: threading.Event | None = None,
-               on_ready: Callable[[RobotPool], None] | None = None, faults: Sequence[Fault] = ()) -> int:
+               on_ready: Callable[[RobotPool], None] | None = None, faults: Sequence[Fault] = (),
+               ahead: bool = False) -> int:
     """Host `ids` until the mission ends, the UAV goes away, or `stop` is set. Returns 0."""
-    pool = RobotPool(ids, transport, fleet, connectivity, move_timeout_s, stop, faults)
+    pool = RobotPool(ids, transport, fleet, connectivity, move_timeout_s, stop, faults, ahead)
     try:
         pool.start()
         if on_ready is not None:
@@ -284,6 +351,9 @@ def add_robot_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--connectivity", type=int, choices=(4, 8), default=4)
     p.add_argument("--move-timeout", type=float, default=MOVE_TIMEOUT_S, metavar="S",
                    help="how long to wait for the world's answer to a move")
+    p.add_argument("--moves", choices=("query", "ahead"), default="query",
+                   help="query: ask the world on each Tick (two wakes a tick); ahead: put each move one tick "
+                        "ahead and be paced by the world's answers (one wake a tick; docs/protocol.md)")
     p.add_argument("--fault", action="append", default=[], metavar="SPEC",
                    help="inject a fault into a hosted robot (repeatable): crash:ROBOT@TICK, "
                         "stall:ROBOT@TICK:TICKS or liar:ROBOT")
@@ -307,7 +377,7 @@ def robot_command(args: argparse.Namespace) -> int:
 
         pools: list[RobotPool] = []
         code = run_robots(ids, transport, args.fleet, args.connectivity, args.move_timeout, stop,
-                          lambda pool: (pools.append(pool), ready(pool)), faults)
+                          lambda pool: (pools.append(pool), ready(pool)), faults, args.moves == "ahead")
     reason = pools[0].exit_reason if pools and pools[0].exit_reason else "stopped"
     print(f"robots {format_ids(ids)}: {reason}", flush=True)
     return code

@@ -4,7 +4,9 @@ It owns what physically exists: the floor, where every robot stands, the goal
 markers and the multicopter. It serves, under `uavr/<fleet>/world/`:
 `info` (site calibration), `camera` (the image seen from the vehicle's current
 pose), `move` (one tick's moves, judged together) and `record` (what happened,
-for scoring). It announces `alive/world` once all of them are declared.
+for scoring); it also takes moves put ahead (`ahead/<ids>`, judged when the
+UAV's Tick comes, answered on `judged/<ids>`: sim_world/ahead.py). It announces
+`alive/world` once all of them are declared.
 
     python -m sim_world --fleet F --connect tcp/127.0.0.1:7447 --robots 8
 """
@@ -24,11 +26,11 @@ import numpy as np
 
 from protocol.config import add_session_arguments
 from protocol.errors import MissionError, ProtocolError, UavRobotsError
-from protocol.keys import DEFAULT_FLEET, Keys, ids_of_move_key, robot_id_from_key
+from protocol.keys import DEFAULT_FLEET, Keys, ids_of_ahead_key, ids_of_move_key, robot_id_from_key
 from protocol.log import Throttled
 from protocol.mapfile import Cell, format_rows, read_scen
-from protocol.messages import (CameraRequest, MissionEnd, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, Record,
-                               RecordRequest, WorldInfo, WorldInfoRequest, decode, encode)
+from protocol.messages import (CameraRequest, MissionEnd, MoveAhead, MoveBatch, MoveBatchResult, MoveRequest, MoveResult,
+                               MovesJudged, Record, RecordRequest, Tick, WorldInfo, WorldInfoRequest, decode, encode)
 from protocol.process import Lifecycle
 from protocol.transport import IncomingQuery, Transport, open_session
 from scenarios.landmarks import LandmarkSet
@@ -276,6 +278,7 @@ class World(Lifecycle):
         self.judge = MoveJudge(self.truth.free, dict(self.truth.starts), cfg.connectivity,
                                skid_prob=cfg.slip, seed=cfg.seed)
         self.desk: MoveDesk | None = None
+        self.ahead: Any = None   # sim_world.ahead.AheadDesk, once started
         self.transport = transport
         self._own_transport = transport is None
         self.vehicle: Any = None
@@ -316,6 +319,8 @@ class World(Lifecycle):
             c = self.cfg
             self.transport = open_session("world", c.listen, c.connect, c.zenoh_config, self.stop, alone="either")
         self.desk = MoveDesk(self.judge, cfg.move_batch_timeout_s)
+        from .ahead import AheadDesk   # it builds on this module's MoveDesk
+        self.ahead = AheadDesk(self.desk, self._put_judged)
         t, k = self.transport, self.keys
         self.keep(
             # In the order they were sent: a UAV flies on once an info query sent after its
@@ -324,6 +329,9 @@ class World(Lifecycle):
             t.serve(k.camera, self._on_camera, inline=True),
             t.serve(k.move, self._on_move, inline=True),
             t.serve(k.moves_by_identity, self._on_move, inline=True),
+            # Inline, so that a sender's moves and the UAV's Tick are taken in the order they came.
+            t.subscribe(k.all_ahead, self._on_move_ahead, inline=True),
+            t.subscribe(k.tick, self._on_tick, inline=True),
             t.serve(k.record, self._on_record),
             t.subscribe(k.mission_end, self._on_mission_end),
             t.watch_alive(k.alive_uav, self._on_uav),
@@ -453,6 +461,35 @@ class World(Lifecycle):
             q.reply(encode(MoveBatchResult(tick=batch.tick, results=out, seq=self._next_seq())))
         assert self.desk is not None
         self.desk.submit_many([(Ask(robot, batch.tick, frm, to), reply) for robot, frm, to in batch.moves])
+
+    def _on_move_ahead(self, key: str, payload: bytes) -> None:
+        """A MoveAhead put: judged for the robots its key names only (as a move query, see Security)."""
+        try:
+            msg = decode(payload, MoveAhead)
+            allowed = ids_of_ahead_key(self.keys, key)
+        except (ProtocolError, UavRobotsError) as exc:
+            self.warn(f"{key[:80]}: {exc}")
+            return
+        foreign = sorted({r for r, _, _ in msg.moves} - set(allowed))
+        if foreign:
+            self.warn(f"refused moves put ahead: {key} may not move robot(s) {foreign[:5]}")
+            return
+        why = self.ahead.on_move_ahead(key.rsplit("/", 1)[1], msg)
+        if why:
+            self.warn(f"{key}: {why}")
+
+    def _on_tick(self, key: str, payload: bytes) -> None:
+        try:
+            tick = decode(payload, Tick)
+        except ProtocolError as exc:
+            self.warn(f"{key}: {exc}")
+            return
+        self.ahead.on_tick(tick)
+
+    def _put_judged(self, label: str, msg: MovesJudged) -> None:
+        assert self.transport is not None
+        self.transport.put(f"{self.keys.prefix}/world/judged/{label}",
+                           encode(dataclasses.replace(msg, seq=self._next_seq())))
 
     def _on_record(self, q: IncomingQuery) -> None:
         if self._decode(q, RecordRequest) is None:

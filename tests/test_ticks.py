@@ -89,11 +89,12 @@ def test_lanes_never_meet():
 def test_bench_ticks_runs_real_processes(tmp_path):
     """A small run of the benchmark: real world, robot and echo processes over Zenoh, both hostings."""
     done = subprocess.run([sys.executable, "-m", "uav_robots", "bench", "ticks", "--robots", "4", "--ticks", "20",
-                           "--pools", "2", "--out", str(tmp_path)], cwd=REPO, capture_output=True, text=True,
-                          timeout=120)
+                           "--pools", "2", "--moves", "ahead,query", "--out", str(tmp_path)], cwd=REPO,
+                          capture_output=True, text=True, timeout=180)
     assert done.returncode == 0, done.stderr[-2000:]
     rows = list(csv.DictReader(open(tmp_path / "ticks.csv")))
-    assert [(r["robots"], r["processes"]) for r in rows] == [("4", "4"), ("4", "2")]
+    assert [(r["robots"], r["processes"], r["moves"]) for r in rows] == [
+        ("4", "4", "ahead"), ("4", "4", "query"), ("4", "2", "ahead"), ("4", "2", "query")]
     for r in rows:
         assert float(r["ticks_per_s"]) > 0 and float(r["barrier_ticks_per_s"]) > 0
         assert r["collisions"] == "0" and r["refused"] == "0"

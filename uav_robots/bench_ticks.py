@@ -31,6 +31,7 @@ from protocol.errors import MissionError, UavRobotsError
 from protocol.keys import Keys, format_ids, new_fleet_name
 from protocol.process import die_with_parent
 
+MOVES = ("ahead", "query")   # robot_agents --moves
 SPAN = 8                 # cells of a robot's lane: it walks SPAN steps one way, then back
 WARMUP_TICKS = 10        # not timed: the first ticks open publishers and fill caches
 READY_TIMEOUT_S = 120.0  # 1,000 robots in a few processes on 2 busy cores take a while to declare
@@ -141,7 +142,7 @@ class Measured:
         return self.ticks / self.seconds if self.seconds > 0 else 0.0
 
 
-def run_mission(n: int, per_process: int, ticks: int, tmp: Path) -> Measured:
+def run_mission(n: int, per_process: int, ticks: int, tmp: Path, moves: str = "ahead") -> Measured:
     """Real world and robot processes execute the lane plan; ticks/s over the timed ticks."""
     from protocol.messages import MissionEnd, Plan, Record, RecordRequest, Tick, decode, encode
     from uav_agent.fleet import FleetLink
@@ -160,7 +161,7 @@ def run_mission(n: int, per_process: int, ticks: int, tmp: Path) -> Measured:
                                      "--robots", str(n), "--scen", str(scen), "--mavlink", "none",
                                      "--camera", "ideal,width=64,height=48"], tmp / f"world-{n}.log")
             for g in hosting(n, per_process):
-                kids.spawn("robot_agents", [*common, "--ids", format_ids(g)], tmp / f"robots-{n}-{g[0]}.log")
+                kids.spawn("robot_agents", [*common, "--ids", format_ids(g), "--moves", moves], tmp / f"robots-{n}-{g[0]}.log")
             ids = list(range(n))
             fl.wait_until(lambda: fl.world_alive and len(fl.alive) == n, READY_TIMEOUT_S,
                           lambda: f"{len(fl.alive)}/{n} robots and {'a' if fl.world_alive else 'no'} world ready "
@@ -318,6 +319,9 @@ def run(args: argparse.Namespace) -> int:
         raise UavRobotsError(f"--ticks must be more than the {WARMUP_TICKS} warm-up ticks, got {args.ticks}")
     if args.max_processes < 1 or args.pools < 1:
         raise UavRobotsError("--max-processes and --pools must be at least 1")
+    modes = [m.strip() for m in args.moves.split(",") if m.strip()]
+    if not modes or any(m not in MOVES for m in modes) or len(set(modes)) != len(modes):
+        raise UavRobotsError(f"--moves {args.moves!r}: give ahead, query or both (ahead,query)")
     load_before = _load()
     rows, summary = [], []
     with tempfile.TemporaryDirectory(prefix="uavr-bench-ticks-") as tmp_s:
@@ -325,32 +329,41 @@ def run(args: argparse.Namespace) -> int:
         for n in sizes:
             for per in hostings_for(n, args.max_processes, args.pools):
                 procs = len(hosting(n, per))
-                _print(f"{n} robots, {_hosting_text(n, per)}: mission ...")
-                try:
-                    m = run_mission(n, per, args.ticks, tmp)
-                except MissionError as exc:
-                    raise UavRobotsError(f"bench ticks, {n} robots in {procs} process(es): {exc}") from None
-                _print(f"  {m.rate:.1f} ticks/s; bare barrier with {procs} process(es) ...")
+                missions = {}
+                for mode in modes:
+                    _print(f"{n} robots, {_hosting_text(n, per)}, moves {mode}: mission ...")
+                    try:
+                        missions[mode] = run_mission(n, per, args.ticks, tmp, mode)
+                    except MissionError as exc:
+                        raise UavRobotsError(f"bench ticks, {n} robots in {procs} process(es), moves {mode}: "
+                                             f"{exc}") from None
+                    _print(f"  {missions[mode].rate:.1f} ticks/s")
+                _print(f"  bare barrier with {procs} process(es) ...")
                 try:
                     b = run_barrier(procs, args.ticks, tmp)
                 except MissionError as exc:
                     raise UavRobotsError(f"bench ticks, barrier of {procs}: {exc}") from None
                 _print(f"  {b.rate:.1f} ticks/s")
-                rows.append([str(n), _hosting_text(n, per), str(procs), f"{m.rate:.1f}", _ms(m.cpu_ms_per_tick),
-                             f"{b.rate:.1f}", _ms(b.cpu_ms_per_tick), f"{m.rate / b.rate:.2f}", f"{m.collisions}",
-                             f"{m.refused}"])
-                summary.append({"robots": n, "processes": procs, "per_process": per, "ticks": m.ticks,
-                                "mission_s": round(m.seconds, 4), "ticks_per_s": round(m.rate, 2),
-                                "cpu_ms_per_tick": _round(m.cpu_ms_per_tick), "barrier_ticks_per_s": round(b.rate, 2),
-                                "barrier_cpu_ms_per_tick": _round(b.cpu_ms_per_tick), "collisions": m.collisions,
-                                "refused": m.refused})
+                for mode, m in missions.items():
+                    rows.append([str(n), _hosting_text(n, per), str(procs), mode, f"{m.rate:.1f}",
+                                 _ms(m.cpu_ms_per_tick), f"{b.rate:.1f}", _ms(b.cpu_ms_per_tick),
+                                 f"{m.rate / b.rate:.2f}", f"{m.collisions}", f"{m.refused}"])
+                    summary.append({"robots": n, "processes": procs, "per_process": per, "moves": mode,
+                                    "ticks": m.ticks, "mission_s": round(m.seconds, 4), "ticks_per_s": round(m.rate, 2),
+                                    "cpu_ms_per_tick": _round(m.cpu_ms_per_tick),
+                                    "barrier_ticks_per_s": round(b.rate, 2),
+                                    "barrier_cpu_ms_per_tick": _round(b.cpu_ms_per_tick), "collisions": m.collisions,
+                                    "refused": m.refused})
     load_after = _load()
-    header = ["robots", "hosting", "processes", "ticks/s", "CPU ms/tick", "bare barrier ticks/s",
+    header = ["robots", "hosting", "processes", "moves", "ticks/s", "CPU ms/tick", "bare barrier ticks/s",
               "barrier CPU ms/tick", "ticks/s / barrier", "collisions", "refused moves"]
     notes = [
         f"Boundary: in-process ticks/s of the lockstep loop, {args.ticks - WARMUP_TICKS} timed ticks after "
         f"{WARMUP_TICKS} warm-up ticks; from the hub's put of Tick k to every robot's RobotState of tick k, "
         "through real robot and world processes over Zenoh on loopback (start-up, plans and shut-down not timed).",
+        "Moves: ahead = every robot puts its move one tick ahead and is paced by the world's answers (one wake "
+        "a tick); query = every robot asks the world on each Tick (docs/protocol.md, Plans and ticks). Each mode "
+        "is its own mission, one after the other, then the barrier, all in this run.",
         "Plan: every robot paces its own lane (8 cells, back and forth), so every tick moves every robot and the "
         "world judges every move; collisions and refused moves are the world's record (any makes the run fail), "
         "and every robot must end where the plan puts it.",
@@ -379,6 +392,9 @@ def add_parser(sub) -> None:
                    help="one process per robot is measured up to this many robots (default 64, as `uav-robots run`)")
     p.add_argument("--pools", type=int, default=4,
                    help="robot processes when robots share them, measured at every count (default 4)")
+    p.add_argument("--moves", default="ahead", metavar="MODES",
+                   help="how the robots move: ahead (one wake a tick, default), query (ask on each Tick), or "
+                        "ahead,query to measure both side by side")
     p.add_argument("--out", default="bench-out", help="directory for the markdown and CSV (default bench-out/)")
 
 

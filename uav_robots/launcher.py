@@ -153,7 +153,7 @@ class Launcher:
             ids = f"{group[0]}-{group[-1]}" if contiguous else format_ids(group)
             mine = [arg for f in faults if f.robot in group for arg in ("--fault", str(f))]
             self._spawn(f"robots-{group[0]}-{group[-1]}", "robot_agents", [*common, *self.session_args(robot_identity(group).name),
-                                          "--ids", ids,
+                                          "--ids", ids, "--moves", "ahead",
                                           "--connectivity", str(a.connectivity), *mine], to_log=True)
         return uav
 
