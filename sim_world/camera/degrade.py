@@ -50,7 +50,11 @@ def _noise_bank(width: int, height: int, std: float) -> np.ndarray:
     a frame; each frame adds a window of it at a random offset (fresh noise per frame costs more
     than the rest of rendering)."""
     noise = np.random.default_rng(0).standard_normal((height + NOISE_PAD, width + NOISE_PAD, 3), dtype=np.float32)
-    noise = np.rint(noise * np.float32(std)).astype(np.int16)
+    # In place: the same values as `rint(noise * std)` without two more 12 MP float copies (the
+    # first image waits for this table: 0.68-1.05 -> 0.43-0.59 s CPU at 12 MP).
+    noise *= np.float32(std)
+    np.rint(noise, out=noise)
+    noise = noise.astype(np.int16)
     noise.flags.writeable = False
     return noise
 
