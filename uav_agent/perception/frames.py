@@ -133,10 +133,7 @@ def pixels(item: Pixels | Frame | CameraFrame, reduce: int = 1) -> Pixels:
 
 
 def _smaller(px: Pixels, r: int) -> Pixels:
-    if px.frame.meta.width % r or px.frame.meta.height % r:
-        raise ProtocolError(f"frame at t={px.frame.meta.time_s:.2f}s: {px.frame.meta.width}x{px.frame.meta.height} "
-                            f"does not divide by {r}")
-
+    """Pixels r times smaller; r divides the image's size (`reduction` offers no other)."""
     def small(a: np.ndarray) -> np.ndarray:
         return cv2.resize(a, None, fx=1 / r, fy=1 / r, interpolation=cv2.INTER_AREA)
 
