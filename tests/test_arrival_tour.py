@@ -1,7 +1,10 @@
 """Where and when arrivals are confirmed during execution: pure functions, no network."""
 from hypothesis import given, strategies as st
 
-from uav_agent.arrival_tour import Stop, arrival_ticks, next_stop, stops
+import itertools
+import math
+
+from uav_agent.arrival_tour import Stop, arrival_ticks, next_stop, route, stops
 from uav_agent.survey import SurveyPose
 
 
@@ -46,3 +49,51 @@ def test_the_next_stop_is_the_one_shot_soonest():
     # Ticks ten times faster: the near one is ready in 0.45 s, before the vehicle would reach the far one.
     assert next_stop([near_late, far_ready], here, 10, 0.005, 10.0) is near_late
     assert next_stop([], here, 0, 0.05, 10.0) is None
+
+
+def _finish(order, here, tick, tick_s, speed):
+    t, at = 0.0, here
+    for s in order:
+        t = max(t + math.dist(at, s.pose[:2]) / speed, (s.ready_tick - tick) * tick_s)
+        at = s.pose[:2]
+    return t
+
+
+def test_the_route_looks_past_the_nearest_stop():
+    # Ready now 1 m east and 10 m west, and one 20 m east ready at 30 s: the nearest first
+    # (1 + 11, then 31 m to the last: 43 s) loses to west first (10 + 11 + 19 = 40 s).
+    here = (0.0, 0.0)
+    east, west = Stop(SurveyPose(0.0, 1.0, 20.0), 0, frozenset({0})), Stop(SurveyPose(0.0, -10.0, 20.0), 0, frozenset({1}))
+    late = Stop(SurveyPose(0.0, 20.0, 20.0), 300, frozenset({2}))
+    order = route([east, west, late], here, 0, 0.1, 1.0)
+    assert order == [west, east, late]
+    assert next_stop([east, west, late], here, 0, 0.1, 1.0) is west
+
+
+@given(st.lists(st.tuples(st.integers(-50, 50), st.integers(-50, 50), st.integers(0, 200)), min_size=1, max_size=6,
+                unique_by=lambda t: t[:2]),
+       st.integers(0, 100), st.floats(0.01, 0.2))
+def test_a_route_through_a_few_stops_is_the_best_order(points, tick, tick_s):
+    remaining = [Stop(SurveyPose(float(n), float(e), 20.0), r, frozenset({i})) for i, (n, e, r) in enumerate(points)]
+    order = route(remaining, (0.0, 0.0), tick, tick_s, 10.0)
+    assert len(order) == len(remaining) and set(order) == set(remaining)
+    best = min(_finish(p, (0.0, 0.0), tick, tick_s, 10.0) for p in itertools.permutations(remaining))
+    assert _finish(order, (0.0, 0.0), tick, tick_s, 10.0) <= best + 1e-9
+
+
+@given(st.lists(st.tuples(st.integers(-300, 300), st.integers(-300, 300), st.integers(0, 250)), min_size=11,
+                max_size=16, unique_by=lambda t: t[:2]),
+       st.floats(0.01, 0.1))
+def test_a_route_through_many_stops_beats_both_simple_orders(points, tick_s):
+    remaining = [Stop(SurveyPose(float(n), float(e), 85.0), r, frozenset({i})) for i, (n, e, r) in enumerate(points)]
+    order = route(remaining, (0.0, 0.0), 0, tick_s, 150.0)
+    assert len(order) == len(remaining) and set(order) == set(remaining)
+    by_readiness = sorted(remaining, key=lambda s: (s.ready_tick, s.pose))
+    greedy, left, t = [], list(remaining), 0.0   # always the stop that can be shot soonest
+    while left:
+        at = greedy[-1].pose[:2] if greedy else (0.0, 0.0)
+        greedy.append(min(left, key=lambda s: max(t + math.dist(at, s.pose[:2]) / 150.0, s.ready_tick * tick_s)))
+        t = max(t + math.dist(at, greedy[-1].pose[:2]) / 150.0, greedy[-1].ready_tick * tick_s)
+        left.remove(greedy[-1])
+    assert _finish(order, (0.0, 0.0), 0, tick_s, 150.0) <= min(
+        _finish(by_readiness, (0.0, 0.0), 0, tick_s, 150.0), _finish(greedy, (0.0, 0.0), 0, tick_s, 150.0)) + 1e-9

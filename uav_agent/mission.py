@@ -8,6 +8,7 @@ after the mission, to score it.
 from __future__ import annotations
 
 import json
+import math
 import os
 import secrets
 import threading
@@ -157,7 +158,11 @@ class Mission:
         self._stops: list = []                  # arrival_tour.Stop: poses still to shoot for arrivals ...
         self._stop = None                       # ... and the one the vehicle flies to or holds at
         self._arrivals: dict[int, int] = {}     # robot -> the tick of its last move in the plan flown
-        self._fly_m_s = SURVEY_SPEED_M_S        # the vehicle's speed between poses, in wall time (measured by the survey)
+        # The vehicle's speed from pose to pose in wall time, stopping and levelling included:
+        # measured by the survey, then by each hop between arrival stops.
+        self._fly_m_s = SURVEY_SPEED_M_S
+        self._flown_m = self._flown_s = 0.0
+        self._hop: tuple[float, float] | None = None
         self._contradicted: set[int] = set()
         self.unserved: list[Cell] = []
         self.plan: PlanState | None = None
@@ -413,7 +418,9 @@ class Mission:
             shots.close()
         self._retake(shots, self.survey_fusion)
         took = time.perf_counter() - t_survey
-        self._fly_m_s = max(1.0, path_length(poses, poses[0][:2]) / took) if took > 0 else SURVEY_SPEED_M_S
+        if took > 0:
+            self._flown_m, self._flown_s = path_length(poses, poses[0][:2]), took
+            self._fly_m_s = max(1.0, self._flown_m / took)
         self.clock.lap("survey")
 
     def _sharp_enough(self, gray, camera: CameraFrame):
@@ -472,7 +479,6 @@ class Mission:
         whose id did not decode, unsure cells (before they are taken for obstacles), cells no image
         saw, and, when fewer goals than robots were seen, the robots (one may stand on a goal and
         hide most of it). Every doubtful cell is planned for; the hovers per round are capped."""
-        import math
 
         from .perception.relook import ROUNDS, plan_round
 
@@ -499,7 +505,6 @@ class Mission:
         """Wait, briefly, for the airframe to level out: a camera fixed to the body sees the floor
         through its tilt, and a vehicle that has just stopped still leans by up to its tilt limit
         (20 degrees swings an image's footprint by a third of the altitude)."""
-        import math
 
         deadline = time.monotonic() + LEVEL_WAIT_S
         limit = math.radians(LEVEL_TILT_DEG)
@@ -512,12 +517,18 @@ class Mission:
     def _look(self, cells: list[Cell] | None = None, back: bool = True) -> dict[int, Cell]:
         """A fresh look from the survey poses, at the whole floor or only at the poses that
         see `cells`, then `back` to the hover: robot id -> the cell the camera sees it on."""
+        from .arrival_tour import Stop, route
         from .survey import covering, nearer_end_first
 
-        poses = self._poses if cells is None else covering(self._poses, cells, self.info.cell_size_m)
         here = self.flight.position_ned()
+        if cells is None:   # the whole survey: its lawn-mower order is the short one
+            poses = nearer_end_first(self._poses, (here[0], here[1]))
+        else:
+            held = covering(self._poses, cells, self.info.cell_size_m)
+            poses = [s.pose for s in route([Stop(p, 0, frozenset()) for p in held], (here[0], here[1]),
+                                           0, 0.0, self._fly_m_s)]
         fusion = self._fusion(set(self.ids))
-        self._tour(nearer_end_first(poses, (here[0], here[1])), fusion)
+        self._tour(poses, fusion)
         if back:
             self.flight.goto(*self._hover_ned)
         model = self._see(fusion, for_map=False)
@@ -635,11 +646,16 @@ class Mission:
         return failed
 
     def _reach_hover(self) -> None:
-        """Wait until the vehicle holds at the hover pose the survey sent it to."""
-        n, e, d = self.flight.goto(*self._hover_ned)
+        """Wait until the vehicle holds at the hover pose the survey sent it to; unless arrival
+        stops are to be flown from the first tick on (a floor of several poses, whose hover
+        sees only part of it): then the vehicle turns to the first stop from wherever it is."""
+        n, e, alt = self._hover_ned
+        if len(self._poses) == 1 or not self._stops:
+            n, e, down = self.flight.goto(n, e, alt)
+            alt = -down
+            self._track_altitude()
         c = self.info.cell_size_m
-        self.uav["hover"] = [round(e / c, 2), round(-n / c, 2), round(-d, 2)]
-        self._track_altitude()
+        self.uav["hover"] = [round(e / c, 2), round(-n / c, 2), round(alt, 2)]
 
     def _execute(self) -> None:
         self._status("executing", tick=0, ticks=self.plan.end_tick, robots=len(self.ids), message="")
@@ -710,6 +726,12 @@ class Mission:
         stop = self._stop
         if stop is not None and not self._still_at(stop.pose):
             return
+        if stop is not None and self._hop is not None:   # arrived: plan with the speed hops really make
+            began, metres = self._hop
+            self._hop = None
+            self._flown_m += metres
+            self._flown_s += time.perf_counter() - began
+            self._fly_m_s = max(1.0, self._flown_m / self._flown_s)
         if stop is not None and k >= stop.ready_tick and len(self._glances) < MAX_GLANCES:
             self._monitor(k, stop)
             self._stops.remove(stop)
@@ -722,10 +744,9 @@ class Mission:
             here = self.flight.position_ned()
             stop = self._stop = next_stop(self._stops, (here[0], here[1]), k, tick_s, self._fly_m_s)
             self.flight.go(*stop.pose)
+            self._hop = (time.perf_counter(), math.dist((here[0], here[1]), stop.pose[:2]))
 
     def _still_at(self, pose) -> bool:
-        import math
-
         roll, pitch, _ = self.flight.attitude_rad()
         return max(abs(roll), abs(pitch)) <= math.radians(LEVEL_TILT_DEG) and self.flight.settled_at(*pose)
 

@@ -26,6 +26,10 @@ from protocol.security import robot_identity
 from robot_agents.faults import parse_fault
 
 GRACE_S = 3.0
+# Robots are not needed before the first plan; 50 Python start-ups at once would starve the
+# world's and the UAV's on a small machine, so they start once the UAV flies (its pose feed
+# runs), and at the latest this long after the UAV.
+ROBOTS_AT_LATEST_S = 8.0
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
@@ -69,6 +73,8 @@ class Launcher:
         self.logs.mkdir(parents=True, exist_ok=True)
         self.groups = robot_groups(args.robots, args.robots_per_process)
         self.compiler: subprocess.Popen | None = None   # the planners' kernels, on a fresh clone
+        self.robots_started = False
+        self.robots_due = math.inf
         self.secure_dir: Path | None = None       # certificates and configs, with --secure
         self.secure_temporary = False
         if args.secure is not None:
@@ -117,7 +123,7 @@ class Launcher:
         return child
 
     def start(self, free) -> Child:
-        """Starts every process of the mission on the grid `free`; the UAV first of them."""
+        """Starts the UAV and the world on the grid `free` (`start_robots` the robots)."""
         from uav_agent.planning import warm
         from uav_agent.planning.interpreted import fits
 
@@ -147,6 +153,15 @@ class Launcher:
                               "--mavlink-bind", a.mavlink_bind,
                               *[x for f in a.fault if f.startswith("slip:") for x in ("--fault", f)]],
                     to_log=True)
+        self.robots_due = time.monotonic() + ROBOTS_AT_LATEST_S
+        return uav
+
+    def start_robots(self) -> None:
+        if self.robots_started:
+            return
+        self.robots_started = True
+        a = self.args
+        common = ["--fleet", self.fleet]
         faults = [parse_fault(f) for f in a.fault if not f.startswith("slip:")]
         for group in self.groups:
             contiguous = group == list(range(group[0], group[-1] + 1))
@@ -155,18 +170,20 @@ class Launcher:
             self._spawn(f"robots-{group[0]}-{group[-1]}", "robot_agents", [*common, *self.session_args(robot_identity(group).name),
                                           "--ids", ids, "--moves", "ahead",
                                           "--connectivity", str(a.connectivity), *mine], to_log=True)
-        return uav
 
-    def watch(self, uav: Child, timeout_s: float) -> int:
+    def watch(self, uav: Child, timeout_s: float, flying=lambda: True) -> int:
         """Wait for the UAV: it owns the mission's outcome. Other processes dying is the UAV's to
         handle (a lost robot is replanned around); the launcher only says so. The world dying leaves
-        the UAV blind, so it is told to stop, which lands its vehicle."""
+        the UAV blind, so it is told to stop, which lands its vehicle. The robots start once
+        `flying()` (or at the latest ROBOTS_AT_LATEST_S after the UAV)."""
         deadline = time.monotonic() + timeout_s
         said: set[str] = set()
         while True:
             code = uav.proc.poll()
             if code is not None:
                 return code
+            if not self.robots_started and (flying() or time.monotonic() >= self.robots_due):
+                self.start_robots()
             for c in self.children:
                 if c is not uav and c.name not in said and c.proc.poll() not in (None, 0):
                     said.add(c.name)
@@ -351,7 +368,7 @@ def _run(args, launcher: "Launcher", name: str, free) -> int:
         observer = start_observer(launcher)
         if view is not None and observer is not None:
             view.follow(observer)
-        code = launcher.watch(uav, args.timeout)
+        code = launcher.watch(uav, args.timeout, observer.flying if observer is not None else lambda: True)
     except KeyboardInterrupt:
         print("interrupted: stopping every process", file=sys.stderr, flush=True)
         code = 130

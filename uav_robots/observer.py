@@ -25,6 +25,7 @@ class Observer:
         self.keys = Keys(fleet)
         self._lock = threading.Lock()
         self.samples: list[Sample] = []
+        self._flying = threading.Event()
         self._transport: Transport | None = open_session("observer", connect=[endpoint], config_file=config_file,
                                                          wait_s=wait_s)
         self._transport.subscribe(f"{self.keys.prefix}/**", self._on_sample)
@@ -32,6 +33,12 @@ class Observer:
     def _on_sample(self, key: str, payload: bytes) -> None:
         with self._lock:
             self.samples.append(Sample(time.time_ns(), key, payload))
+        if key == self.keys.uav_pose:
+            self._flying.set()
+
+    def flying(self) -> bool:
+        """True once the UAV has published a pose: it does so from its take-off on."""
+        return self._flying.is_set()
 
     def since(self, i: int) -> list[Sample]:
         """Samples received after the first `i` (a reader keeps its own position)."""
