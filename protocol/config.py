@@ -31,10 +31,16 @@ def hub_dict(listen: list[str]) -> dict[str, Any]:
     }
 
 
+# Processes start together, each client before the router it connects to is up: Zenoh's own
+# first retry after a second made them (and the launcher's recorder, which then missed the
+# take-off) wait that long; from 50 ms, backing off to Zenoh's usual pace for a router that is down.
+CONNECT_RETRY = {"period_init_ms": 50, "period_max_ms": 4000, "period_increase_factor": 2}
+
+
 def client_dict(connect: list[str], timeout_ms: int = CONNECT_TIMEOUT_MS, lease_ms: int = LEASE_MS) -> dict[str, Any]:
     return {
         "mode": "client",
-        "connect": {"endpoints": connect, "timeout_ms": timeout_ms},
+        "connect": {"endpoints": connect, "timeout_ms": timeout_ms, "retry": dict(CONNECT_RETRY)},
         "scouting": {"multicast": {"enabled": False}},
         "transport": {"link": {"tx": {"lease": lease_ms}}},
     }

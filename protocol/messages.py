@@ -225,7 +225,10 @@ class Done(Message):
 @dataclass(frozen=True)
 class CameraRequest(Message):
     """Ask the world's camera for the image seen from the vehicle's current pose."""
-    pass
+    # Optional (v1-compatible): only the camera's calibration and the pose estimate, like a
+    # camera's information message: the reply is a CameraFrame without image bytes. A world
+    # that sends the image anyway is still understood.
+    calibration_only: bool = False
 
 
 @dataclass(frozen=True)

@@ -523,7 +523,14 @@ class World(Lifecycle):
                 "events": [[round(t, 2), text] for t, text in v.events]}
 
     def _on_camera(self, q: IncomingQuery) -> None:
-        if self._decode(q, CameraRequest) is None:
+        request = self._decode(q, CameraRequest)
+        if request is None:
+            return
+        if request.calibration_only:   # no render: answered at once, ahead of images being made
+            from .camera import calibration_frame
+
+            _, view, model, _, estimator, t, seq, _ = self.exposure()
+            q.reply(encode(calibration_frame(view, model, estimator, t, seq)))
             return
         # The shutter opens now, as the request arrives: the vehicle may fly on while the
         # image is rendered (tens to hundreds of milliseconds, off the transport's thread).

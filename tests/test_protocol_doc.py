@@ -46,7 +46,8 @@ def test_the_documented_zenoh_configs_are_the_generated_ones():
     keys = ["mode", "listen/endpoints", "scouting/multicast/enabled"]
     assert _settings(zenoh.Config.from_json5(router), keys) == \
         _settings(zenoh.Config.from_json5(hub_config([DEFAULT_ENDPOINT])), keys)
-    keys = ["mode", "connect/endpoints", "connect/timeout_ms", "scouting/multicast/enabled", "transport/link/tx/lease"]
+    keys = ["mode", "connect/endpoints", "connect/timeout_ms", "connect/retry", "scouting/multicast/enabled",
+            "transport/link/tx/lease"]
     assert _settings(zenoh.Config.from_json5(client), keys) == \
         _settings(zenoh.Config.from_json5(client_config([DEFAULT_ENDPOINT])), keys)
 

@@ -150,6 +150,21 @@ def test_camera_renders_the_current_positions(mem_world):
     assert abs(centre[0] - u) < 3 and abs(centre[1] - v) < 3
 
 
+def test_a_calibration_only_request_gets_the_frame_without_an_image(mem_world):
+    world, client = mem_world
+    (raw,) = client.request(world.keys.camera, encode(CameraRequest(calibration_only=True)), 10)
+    info = decode(raw, CameraFrame)
+    assert info.png == b""
+    (raw,) = client.request(world.keys.camera, encode(CameraRequest()), 10)
+    frame = decode(raw, CameraFrame)
+    assert frame.png and cv2.imdecode(np.frombuffer(frame.png, np.uint8), cv2.IMREAD_COLOR) is not None
+    # the same calibration and encoding as an image's frame, and a pose from the same estimate
+    calibration = ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "encoding",
+                   "pose_sigma_m", "yaw_sigma_deg")
+    assert {a: getattr(info, a) for a in calibration} == {a: getattr(frame, a) for a in calibration}
+    assert abs(info.down_m - frame.down_m) < 1.0 and info.seq != frame.seq
+
+
 def test_bad_config_is_one_line_error(tmp_path):
     run = subprocess.run([sys.executable, "-m", "sim_world", "--fleet", "f", "--map", "nosuch.map",
                           "--mavlink", "none"], cwd=REPO, capture_output=True, text=True, timeout=30)

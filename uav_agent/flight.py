@@ -72,13 +72,12 @@ class Flight:
 
     # --- lifecycle ---------------------------------------------------------------------
 
-    def connect(self, timeout_s: float = 10.0) -> "Flight":
-        """Open the link, wait for an autopilot, its home and its position."""
-        if self._system is not None:
+    def open(self) -> "Flight":
+        """Open the link and return at once: MAVSDK listens from now on. An autopilot beats once
+        a second, and its beats before this are lost (UDP): open early, `connect` later."""
+        if self._mavsdk is not None:
             return self
-        _check_timeout(timeout_s)
         _route_mavsdk_logs()
-        deadline = time.monotonic() + timeout_s
         self._config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
         self._mavsdk = Mavsdk(self._config)
         try:
@@ -89,6 +88,15 @@ class Flight:
         if result != ConnectionResult.SUCCESS:
             self.close()
             raise MissionError(f"cannot open MAVLink connection {self.url!r}: {result.name}")
+        return self
+
+    def connect(self, timeout_s: float = 10.0) -> "Flight":
+        """Open the link (unless `open` did), wait for an autopilot, its home and its position."""
+        if self._system is not None:
+            return self
+        _check_timeout(timeout_s)
+        deadline = time.monotonic() + timeout_s
+        self.open()
         system = self._mavsdk.first_autopilot(max(0.0, deadline - time.monotonic()))
         if system is None:
             self.close()

@@ -187,10 +187,12 @@ class Mission:
         north, east, down = self.flight.position_ned()
         self.uav["max_altitude_m"] = round(max(self.uav["max_altitude_m"], -down), 2)
 
-    def _capture(self) -> CameraFrame:
-        frame = _query(self.transport, self.keys.camera, CameraRequest(seq=self._next()), CameraFrame, "camera",
-                       CAMERA_TIMEOUT_S)
-        self._took(frame)
+    def _capture(self, calibration_only: bool = False) -> CameraFrame:
+        frame = _query(self.transport, self.keys.camera, CameraRequest(calibration_only=calibration_only,
+                                                                       seq=self._next()),
+                       CameraFrame, "camera", CAMERA_TIMEOUT_S)
+        if frame.png:
+            self._took(frame)
         return frame
 
     def _took(self, frame: CameraFrame) -> None:
@@ -265,6 +267,8 @@ class Mission:
             self._token = self.transport.announce(self.keys.alive_uav)
             self.previewer = Previewer(lambda f: self.transport.put(self.keys.uav_frame, encode(f)))
             self.fleet = FleetLink(self.transport, self.keys)
+            # Listening on MAVLink while the world starts: its vehicle's first heartbeat is not lost.
+            self.flight = Flight(self.cfg.mavlink_url).open()
             self._status("connecting", message="waiting for the world on Zenoh")
             self.fleet.wait_until(lambda: self.fleet.world_alive, self.cfg.startup_timeout_s,
                                   lambda: f"no world on fleet {self.cfg.fleet} within {self.cfg.startup_timeout_s:g} s")
@@ -277,7 +281,6 @@ class Mission:
             self._skip_warm = threading.Event()
             self._warm = threading.Thread(target=self._warm_up_planner, name="planner-warm-up", daemon=True)
             self._warm.start()
-            self.flight = Flight(self.cfg.mavlink_url)
             self.flight.connect(timeout_s=self.cfg.startup_timeout_s)
             self.watch = VehicleWatch(self.flight, self._vehicle_fault)
             self.pose_feed = PoseFeed(self.flight, lambda p: self.transport.put(self.keys.uav_pose, encode(p)),
@@ -355,7 +358,7 @@ class Mission:
         self._status("takeoff", message=f"arming and climbing over MAVLink ({self.cfg.mavlink_url})")
         self.flight.arm()
         self.uav["armed"] = True
-        first = self._camera = self._capture()  # on the ground: only to learn the camera's intrinsics
+        first = self._camera = self._capture(calibration_only=True)  # the camera's intrinsics and lens
         self.frames.clear()
         poses = self._poses = survey_poses(self.info.width, self.info.height, self.info.cell_size_m, first,
                                            min_px_per_cell=self.cfg.min_px_per_cell, border_px=self._border(first))

@@ -31,7 +31,7 @@ Modules: model (keys, presets), render (geometry, texture, lens), degrade
 (blur, lighting, vignetting, noise), encode (PNG/JPEG, the message), estimate
 (the pose error), capture (one exposure: all of them).
 """
-from .capture import VehicleView, capture_frame, prepare
+from .capture import VehicleView, calibration_frame, capture_frame, prepare
 from .degrade import motion_kernel
 from .encode import camera_frame, encode_frame, encode_image
 from .estimate import PoseEstimator
@@ -40,6 +40,6 @@ from .render import (ARUCO_DICTIONARY, MARKER_IDS, CameraPose, Scene, camera_rot
                      floor_homography, render, scene_landmarks)
 
 __all__ = ["ARUCO_DICTIONARY", "CameraModel", "CameraPose", "DEFAULT_CAMERA_PRESET", "KEYS", "MARKER_IDS", "PRESETS",
-           "PoseEstimator", "Scene", "VehicleView", "camera_frame", "camera_model_from", "camera_options",
+           "PoseEstimator", "Scene", "VehicleView", "calibration_frame", "camera_frame", "camera_model_from", "camera_options",
            "camera_rotation", "capture_frame", "cell_centre_ned", "encode_frame", "encode_image", "floor_homography",
            "motion_kernel", "prepare", "render", "scene_landmarks"]

@@ -7,7 +7,7 @@ from typing import NamedTuple
 from protocol.messages import CameraFrame
 
 from .degrade import prepare_degrade
-from .encode import encode_frame
+from .encode import camera_frame, encode_frame
 from .estimate import PoseEstimator
 from .model import CameraModel
 from .render import CameraPose, Scene, lens_for, render
@@ -30,11 +30,23 @@ class VehicleView(NamedTuple):
         return CameraPose(*self[:6])
 
 
-def capture_frame(scene: Scene, view: VehicleView, model: CameraModel, cell_size_m: float,
-                  estimator: PoseEstimator, time_s: float, seq: int = 0, seed: int | None = None) -> CameraFrame:
+def _camera_pose(view: VehicleView, model: CameraModel) -> CameraPose:
     pose = view.pose
     if model.gimbal:   # a stabilised camera stays level whatever the airframe does
         pose = pose._replace(roll_rad=0.0, pitch_rad=0.0)
+    return pose
+
+
+def calibration_frame(view: VehicleView, model: CameraModel, estimator: PoseEstimator, time_s: float,
+                      seq: int = 0) -> CameraFrame:
+    """What a `calibration_only` request gets: the frame of an exposure now, without its image."""
+    return camera_frame(estimator.estimate(_camera_pose(view, model), time_s), model, time_s, b"", seq,
+                        "jpeg" if model.jpeg_quality else "png")
+
+
+def capture_frame(scene: Scene, view: VehicleView, model: CameraModel, cell_size_m: float,
+                  estimator: PoseEstimator, time_s: float, seq: int = 0, seed: int | None = None) -> CameraFrame:
+    pose = _camera_pose(view, model)
     image = render(scene, pose, model, cell_size_m, seed=seed if seed is not None else seq,
                    velocity_ned=(view.vel_north, view.vel_east, view.vel_down))
     return encode_frame(image, estimator.estimate(pose, time_s), model, time_s, seq)
