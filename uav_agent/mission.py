@@ -42,6 +42,7 @@ LEVEL_WAIT_S = 3.0         # ... for at most this long: a vehicle that has just 
 STARTUP_LONGEST = 4         # robots still coming up extend the start-up wait, to this many times it
 PLAN_RESEND_S = 2.0        # a plan not acknowledged within this is put again
 SURVEY_BORDER = 0.06       # of the image's short side, with a lens: its undistorted corners are empty
+HANDOFF_ALT_M = 10.0       # take-off to this height, clear of anything on the floor, then on to the first pose
 SURVEY_SPEED_M_S = 20.0    # asked of the autopilot for the flight between hover poses (capped by MPC_XY_VEL_MAX)
 MONITOR_FIRST = 25         # auto monitoring: the first image after this many ticks ...
 MONITOR_SHARE = 0.2        # ... then whenever the images so far cost at most this share of execution time
@@ -363,13 +364,16 @@ class Mission:
         poses = self._poses = survey_poses(self.info.width, self.info.height, self.info.cell_size_m, first,
                                            min_px_per_cell=self.cfg.min_px_per_cell, border_px=self._border(first))
         self.pose_feed.flying(True)
-        self.flight.takeoff(poses[0][2])
+        # A take-off climbs straight up (PX4's does); the rest of the climb is flown on the way to
+        # the first pose, the vehicle climbing and crossing at once.
+        self.flight.takeoff(min(poses[0][2], HANDOFF_ALT_M))
         self.watch.expect_airborne(True)
-        self._track_altitude()
         try:
             self.flight.set_speed(SURVEY_SPEED_M_S)
         except MissionError as exc:   # an autopilot without DO_CHANGE_SPEED flies its cruise speed
             self.progress.phase("survey", f"keeping the vehicle's cruise speed: {exc}")
+        self.flight.goto(*poses[0])
+        self._track_altitude()
         self.clock.lap("takeoff")
         # The images are perceived while the vehicle flies on. The first one also measures the
         # camera's blur: if the survey's height is too high to read markers through it, the
