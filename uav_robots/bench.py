@@ -63,6 +63,7 @@ class Job:
     time_limit: float
     tags: dict[str, Any] = field(default_factory=dict)   # what the tables group by
     stop_after_timeout: bool = False   # a timeout at N skips this group's later jobs with >= N robots
+    refine_s: float = 0.0              # seconds of refinement after the plan (movingai --refine)
 
 
 @dataclass
@@ -155,7 +156,7 @@ def worker_main() -> int:
             agents = read_scen(job.scen_path, free, job.agents)
             r = plan_mission(free, [a.start for a in agents], [a.goal for a in agents], planner=job.planner,
                              assign=job.assign, connectivity=job.connectivity, time_limit=job.time_limit,
-                             fallback=True)
+                             fallback=True, refine_s=job.refine_s)
             res.update(status="ok", planner=r.planner, fell_back=r.fell_back, timings=r.timings,
                        metrics=r.metrics, error="; ".join(r.notes))
         except UavRobotsError as exc:
@@ -505,7 +506,7 @@ def run_movingai(args: argparse.Namespace) -> int:
             for s in scens:
                 scen_path = movingai_scen(m, s, args.data)
                 jobs.append(Job(str(map_path), str(scen_path), n, planner, "none", args.connectivity,
-                                args.time_limit, {"map": m, "scen": s}))
+                                args.time_limit, {"map": m, "scen": s}, refine_s=args.refine))
         groups[m] = jobs
     outcomes, warmups = _run_all(groups, args.warm_cache, "bench movingai")
 
@@ -531,7 +532,9 @@ def run_movingai(args: argparse.Namespace) -> int:
                             "fell_back": fb, "median_total_s": med, "max_total_s": worst, "median_planning_s": plan_s,
                             "soc_over_lb": ratio, "makespan": mk, "peak_rss_mb": rss, "reference_lacam3_s": ref})
     notes = [
-        f"Planner {planner}, {args.connectivity}-connected, the scenario's own start-goal pairs (no assignment), "
+        f"Planner {planner}" + (f" then up to {args.refine:g} s of refinement (MAPF-LNS, `--refine`)"
+                                if args.refine else "")
+        + f", {args.connectivity}-connected, the scenario's own start-goal pairs (no assignment), "
         f"scenarios {', '.join(scens)}; limit {args.time_limit:g} s per instance; times in seconds from the "
         "loaded map to the validated plan.",
         "SoC/LB: sum of costs / sum of the robots' shortest-path distances; LaCAM3 s: reference on random-1 from "

@@ -21,6 +21,21 @@ def _positive_float(text: str) -> float:
     return v
 
 
+def _seconds(text: str) -> float:
+    """A finite, non-negative number of seconds (0: off)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0 <= v < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a finite number of seconds, 0 or more")
+    return v
+
+
+REFINE_HELP = ("then improve the plan for up to S more seconds by large-neighbourhood search (MAPF-LNS), "
+               "within --time-limit; stops at once when no robot is delayed (default 0: off)")
+
+
 def _positive_int(text: str) -> int:
     try:
         v = int(text)
@@ -64,6 +79,7 @@ def add_plan_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--time-limit", type=_positive_float, default=60.0, help="seconds for the whole plan (default 60)")
     p.add_argument("--no-fallback", action="store_true",
                    help="fail instead of falling back to the default planner when an incomplete one fails")
+    p.add_argument("--refine", type=_seconds, default=0.0, metavar="S", help=REFINE_HELP)
     p.set_defaults(func=cmd_plan)
     return p
 
@@ -98,7 +114,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
         result = plan_mission(free, starts, goals, planner=args.planner, assign=assign,
                               connectivity=args.connectivity, time_limit=args.time_limit,
-                              fallback=not args.no_fallback, seed=args.seed)
+                              fallback=not args.no_fallback, seed=args.seed, refine_s=args.refine)
         write_plan(args.out, result, free, map_name=name)
     except UavRobotsError as exc:
         return _fail(exc)
@@ -138,13 +154,17 @@ def _print_plan(name, shape, result, t_load: float, out: str) -> None:
     planner = result.planner + (f" (fell back from {result.requested})" if result.fell_back else "")
     table.add_row("planner", planner)
     table.add_row("assignment", result.assign)
+    if "initial_sum_of_costs" in m:
+        table.add_row("sum of costs before refinement", str(m["initial_sum_of_costs"]))
+        table.add_row("refinement rounds", str(m["refine_rounds"]))
     table.add_row("sum of costs", str(m["sum_of_costs"]))
     table.add_row("lower bound", str(m["lower_bound"]))
     table.add_row("SoC / LB", f"{m['soc_over_lb']:.4f}")
     table.add_row("makespan", str(m["makespan"]))
     table.add_row("map + robots loaded", f"{t_load:.3f} s")
-    for phase in ("distances", "assignment", "planning", "validation", "total"):
-        table.add_row(f"time: {phase}", f"{t[phase]:.3f} s")
+    for phase in ("distances", "assignment", "planning", "refinement", "validation", "total"):
+        if phase in t:
+            table.add_row(f"time: {phase}", f"{t[phase]:.3f} s")
     console = Console(width=100)
     console.print(f"{len(result.paths)} robots on {name} ({w}x{h}), {result.connectivity}-connected", markup=False)
     console.print(table)
@@ -197,6 +217,7 @@ def add_bench_parser(subparsers) -> argparse.ArgumentParser:
     pm.add_argument("--scens", default="random-1..5", help="e.g. random-1..5,even-1 (default random-1..5)")
     pm.add_argument("--agents", default="50,100,200,400", help="robot counts (comma-separated)")
     pm.add_argument("--planner", default=DEFAULT_PLANNER, help=f"{', '.join(PLANNERS)} (default {DEFAULT_PLANNER})")
+    pm.add_argument("--refine", type=_seconds, default=0.0, metavar="S", help=REFINE_HELP)
     common(pm, 60.0)
     pm.set_defaults(func=cmd_bench)
 

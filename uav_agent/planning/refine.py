@@ -18,7 +18,7 @@ import time
 import numpy as np
 from numba import njit
 
-from .distances import Instance
+from .distances import Instance, compile_problem
 from .grid_kernels import (
     Grid,
     copy_into,
@@ -31,7 +31,7 @@ from .grid_kernels import (
     shuffle,
 )
 from .pibt import arrivals
-from .prioritized import max_expansions
+from .prioritized import max_expansions, split_paths
 from .reservations import (
     Paths,
     Reservations,
@@ -44,6 +44,7 @@ from .reservations import (
     unreserve,
 )
 from .sipp import sipp
+from .types import Path, Problem
 
 REFINE_EXPANSIONS = 50_000     # per replanning search: a refinement round must stay short
 TOURNAMENT = 8                 # random robots a round's seed is the most delayed of
@@ -253,3 +254,23 @@ def refine(inst: Instance, buf, poff, plen, seconds: float, target_ratio: float 
     paths, soc, it = _refine(grid_of(inst), d0, Paths(buf, poff, plen, end), cap, time.perf_counter() + seconds,
                              target, int(inst.problem.seed), group)
     return paths.buf, paths.off, paths.length, soc, it
+
+
+def improve(problem: Problem, paths: list[Path], seconds: float, group: int = 8) -> tuple[list[Path], int]:
+    """`refine` for a plan given as cell paths: the paths, each cut after its last arrival (no
+    dearer than before), and the rounds run. Stops at once when no robot is delayed."""
+    inst = compile_problem(problem)
+    w = problem.free.shape[1]
+    ids = []
+    for p in paths:
+        a = inst.graph.index[np.array([y * w + x for x, y in p], dtype=np.int64)].astype(np.int32)
+        k = len(a)
+        while k > 1 and a[k - 2] == a[-1]:
+            k -= 1
+        ids.append(a[:k])
+    plen = np.array([len(a) for a in ids], dtype=np.int64)
+    poff = np.concatenate(([0], np.cumsum(plen)[:-1])).astype(np.int64)
+    if int((plen - 1).sum()) <= inst.lower_bound():
+        return split_paths(inst, np.concatenate(ids), poff, plen), 0
+    buf, poff, plen, _, rounds = refine(inst, np.concatenate(ids), poff, plen, seconds, group=group)
+    return split_paths(inst, buf, poff, plen), int(rounds)
