@@ -20,6 +20,7 @@ from sim_world.camera import (
     CameraModel,
     Scene,
     camera_frame,
+    camera_model_from,
     cell_centre_ned,
     encode_frame,
     floor_homography,
@@ -349,3 +350,21 @@ def test_a_frame_with_cells_far_over_the_needed_resolution_is_read_smaller_and_t
     view = fusion.add(frame)
     assert view.gray.shape == small.gray.shape and view.reg.registered
     assert score(fusion.model(), scene) == (0, 0, 0)
+
+
+def test_the_survey_border_counts_the_lens_the_tilt_and_the_hold_and_the_450_floor_takes_nine_images():
+    """The border is what the lens leaves empty, a 1-degree tilt and the hover tolerance: the
+    realistic camera's mild barrel lens leaves nothing empty, a pincushion lens its corners."""
+    from sim_world.world import DRONE_CAMERA
+    from uav_agent.mission import LEVEL_TILT_DEG, Mission
+    from uav_agent.perception.frames import lens_margin_px
+
+    realistic, pinhole = camera_model_from("realistic", DRONE_CAMERA), camera_model_from("ideal", DRONE_CAMERA)
+    pincushion = camera_model_from("realistic,k1=0.1", DRONE_CAMERA)
+    assert lens_margin_px(realistic) == lens_margin_px(pinhole) == 0
+    assert lens_margin_px(pincushion) > 100
+    tilt = math.ceil(2000 * math.tan(math.radians(LEVEL_TILT_DEG)))
+    assert Mission._border(realistic, 19.0, 1.0) == Mission._border(pinhole, 19.0, 1.0) == 8 + tilt + 19
+    assert Mission._border(pincushion, 19.0, 1.0) == 8 + lens_margin_px(pincushion) + tilt + 19
+    poses = survey_poses(450, 450, CELL, realistic, min_px_per_cell=19.0, border_px=Mission._border(realistic))
+    assert len(poses) == 9 and 2000 / poses[0].alt_m >= 19.0

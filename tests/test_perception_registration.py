@@ -280,6 +280,26 @@ def test_the_450_surveys_pad_layout_robots_read_by_the_detector_are_kept():
         assert seen and read == seen and warnings == []
 
 
+def test_a_weak_full_cell_read_gives_way_to_a_clear_pad_read(monkeypatch):
+    """At the 450 survey's 19 px per cell a pad-layout robot's modules are 2.2 px: the full-cell
+    grid laid over it can name the right code too weakly to count (0.02 of the contrast), and
+    that weak read once kept the pad grid's clear one (0.12) from being tried: 2 of 200 robots
+    went unread over four placements, and the mission flew a closer look for them."""
+    from types import SimpleNamespace
+
+    import uav_agent.perception.markers as mk
+
+    code = mk._code(7)[0]
+    monkeypatch.setattr(mk, "_detect_near", lambda view, cells, perimeter: [])
+    monkeypatch.setattr(mk, "_module_margins", lambda view, cell, marker_cells=mk.MARKER_SIZE_CELLS:
+                        code * (0.02 if marker_cells == mk.MARKER_SIZE_CELLS else 0.12))
+    read = mk.read_markers(SimpleNamespace(ppc=19.0), {(3, 4)}, (10, 10), [])
+    assert [(s.robot, s.cell) for s in read] == [(7, (3, 4))]
+    # Both weak: nothing is claimed.
+    monkeypatch.setattr(mk, "_module_margins", lambda view, cell, marker_cells=mk.MARKER_SIZE_CELLS: code * 0.02)
+    assert mk.read_markers(SimpleNamespace(ppc=19.0), {(3, 4)}, (10, 10), []) == []
+
+
 def test_a_blurred_landmark_a_bit_or_two_off_is_still_read():
     """At the combined target a 46 px landmark under blur 2 often reads two bits off. Read with
     OpenCV's default 60 % of the family's correction, this closer look found one of the two

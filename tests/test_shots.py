@@ -153,3 +153,36 @@ def test_the_caller_flies_on_with_several_images_in_flight_up_to_its_bound():
     finally:
         shots.close()
     assert three - t < 1.0 and four >= opened[0] and [f.seq for f in frames] == [1, 2, 3, 4]
+
+
+def test_frames_measured_at_once_are_merged_in_their_order():
+    """Two frames measured side by side (the first slower), merged in the order they were taken;
+    a measurement that fails is named by drain, and the others are still merged."""
+    transport = MemoryTransport(MemoryBus())
+    camera = Camera(transport)
+    took, merged, running, most = [], [], [0], [0]
+    lock = threading.Lock()
+
+    def measure(frame):
+        with lock:
+            running[0] += 1
+            most[0] = max(most[0], running[0])
+        time.sleep(0.3 if frame.seq % 2 else 0.05)
+        with lock:
+            running[0] -= 1
+        if frame.seq == 4:
+            raise ValueError("unreadable")
+        return frame.seq
+
+    shots = Shots(lambda: transport.request_start(KEY, encode(CameraRequest()), 2.0), took.append, measure, 2.0,
+                  merge=merged.append, workers=2)
+    try:
+        for i in range(6):
+            camera.pose = (-10.0 * i, 5.0, 10.0)
+            shots.shoot((-10.0 * i, 5.0, 10.0))
+        with pytest.raises(MissionError, match="ValueError: unreadable"):
+            shots.drain()
+        assert shots.done()
+    finally:
+        shots.close()
+    assert merged == [1, 2, 3, 5, 6] and most[0] == 2 and [f.seq for f in took] == [1, 2, 3, 4, 5, 6]

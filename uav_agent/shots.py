@@ -3,8 +3,10 @@
 The world opens the shutter when the request arrives, so the vehicle may fly on
 to the next pose while the image is rendered, sent and perceived. One thread
 receives the replies in order, another hands each frame to the mission (its
-record, the live preview) and folds it into a `Fusion`: the images are perceived
-while the vehicle is still flying the survey.
+record, the live preview) and to perception, which measures up to `workers`
+frames at once (a frame's OpenCV work costs about as long as the flight to the
+next pose; one thread fell behind) and folds them into a `Fusion` in their
+order: the images are perceived while the vehicle is still flying the survey.
 
 The request and the next flight command travel on different links (Zenoh,
 MAVLink), so the vehicle must not fly on before the shutter has opened. After
@@ -24,6 +26,7 @@ from __future__ import annotations
 import math
 import queue
 import threading
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Callable
 
 from protocol.errors import MissionError, ProtocolError
@@ -39,11 +42,18 @@ class Shots:
 
     def __init__(self, start: Callable[[], PendingRequest], on_frame: Callable[[CameraFrame], None],
                  perceive: Callable[[CameraFrame], object] | None = None, timeout_s: float = 10.0,
-                 fence: Callable[[], object] | None = None, ahead: int = 4) -> None:
+                 fence: Callable[[], object] | None = None, ahead: int = 4,
+                 merge: Callable[[object], None] | None = None, workers: int = 1) -> None:
+        """`perceive` each frame as it arrives; with `merge`, `perceive` only measures (on up to
+        `workers` frames at once) and `merge` folds each result in, in the frames' order."""
         self._start, self._on_frame, self._perceive, self._fence = start, on_frame, perceive, fence
+        self._merge = merge
         self._timeout_s, self._ahead = timeout_s, max(1, ahead)
         self._requests: queue.Queue[tuple[PendingRequest, Where | None] | None] = queue.Queue()
         self._frames: queue.Queue[tuple[CameraFrame, Where | None] | None] = queue.Queue()
+        self._measured: queue.Queue[Future | None] = queue.Queue()
+        self._pool = (ThreadPoolExecutor(workers, thread_name_prefix="shots-measure")
+                      if perceive is not None and merge is not None and workers > 1 else None)
         self._cv = threading.Condition()
         self._asked = self._arrived = self._handled = 0
         self._error: str | None = None
@@ -51,6 +61,8 @@ class Shots:
         self.missed: list[Where] = []
         self._threads = [threading.Thread(target=self._receive, name="shots-receive", daemon=True),
                          threading.Thread(target=self._digest, name="shots-perceive", daemon=True)]
+        if self._pool is not None:
+            self._threads.append(threading.Thread(target=self._merging, name="shots-merge", daemon=True))
         for t in self._threads:
             t.start()
 
@@ -86,6 +98,8 @@ class Shots:
         self._requests.put(None)
         for t in self._threads:
             t.join(timeout=self._timeout_s + 5.0)
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
 
     def _fail(self, error: str) -> None:
         with self._cv:
@@ -115,27 +129,46 @@ class Shots:
 
     def _digest(self) -> None:
         while (job := self._frames.get()) is not None:
-            error = None
-            try:
-                self._take(*job)
-            except MissionError as exc:
-                error = str(exc)
-            except Exception as exc:  # noqa: BLE001 - a fault here must reach the mission, not kill a thread
-                error = f"perceiving an image failed: {type(exc).__name__}: {exc}"
-            with self._cv:
-                self._handled += 1
-                if error is not None and self._error is None:
-                    self._error = error
-                self._cv.notify_all()
+            self._guarded(lambda: self._take(*job))
+        self._measured.put(None)
 
-    def _take(self, frame: CameraFrame, where: Where | None) -> None:
+    def _merging(self) -> None:
+        while (job := self._measured.get()) is not None:
+            self._guarded(lambda: self._merge(job.result()))
+
+    def _guarded(self, step: Callable[[], bool | None]) -> None:
+        """Run one step of an image's handling; unless it handed the image on (True), the
+        image is handled, and a failure is the mission's to hear."""
+        error = None
+        try:
+            if step():
+                return
+        except MissionError as exc:
+            error = str(exc)
+        except Exception as exc:  # noqa: BLE001 - a fault here must reach the mission, not kill a thread
+            error = f"perceiving an image failed: {type(exc).__name__}: {exc}"
+        with self._cv:
+            self._handled += 1
+            if error is not None and self._error is None:
+                self._error = error
+            self._cv.notify_all()
+
+    def _take(self, frame: CameraFrame, where: Where | None) -> bool:
+        """True if the frame went on to be measured and merged."""
         self._on_frame(frame)
         if where is not None and not taken_at(frame, where):
             self.missed.append(where)
-            return
+            return False
         self.frames.append(frame)
-        if self._perceive is not None:
-            self._perceive(frame)
+        if self._perceive is None:
+            return False
+        if self._pool is not None:
+            self._measured.put(self._pool.submit(self._perceive, frame))
+            return True
+        result = self._perceive(frame)
+        if self._merge is not None:
+            self._merge(result)
+        return False
 
 
 def taken_at(frame: CameraFrame, where: Where, tolerance_m: float = 1.0) -> bool:

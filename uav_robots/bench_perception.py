@@ -29,7 +29,7 @@ from protocol.errors import UavRobotsError
 from scenarios.maps import place, resolve_map
 from sim_world.camera import PRESETS, CameraModel, PoseEstimator, Scene, VehicleView, capture_frame, scene_landmarks
 from sim_world.world import DRONE_CAMERA
-from uav_agent.mission import Mission
+from uav_agent.mission import Mission, MissionConfig
 from uav_agent.perception import Landmarks, decode_frame, perceive
 from uav_agent.perception.blur import blur_sigma
 from uav_agent.perception.frames import undistorted
@@ -49,7 +49,7 @@ TARGET = {"blur_sigma": 2.0, "lighting": 0.5, "noise_std": 10.0, "pose_sigma_m":
 AXES: dict[str, list[float]] = {"blur_sigma": [0.0, 1.0, 2.0, 3.0], "lighting": [0.3, 0.5, 0.7, 0.85],
                                 "noise_std": [0.0, 10.0, 20.0], "pose_sigma_m": [0.0, 0.5, 1.0],
                                 "yaw_sigma_deg": [0.0, 3.0, 5.0]}
-MIN_PX_PER_CELL = 20.0
+MIN_PX_PER_CELL = MissionConfig.min_px_per_cell   # the mission's own survey resolution
 CELL = 1.0
 
 
@@ -110,7 +110,7 @@ def simulate(scene: Scene, model: CameraModel, seed: int = 0, survey_tilt_deg: f
         spent[0] += time.perf_counter() - t
         return out
 
-    border = Mission._border(model)          # the mission's lens margin (the model has the frame's lens fields)
+    border = Mission._border(model, MIN_PX_PER_CELL, CELL)   # the mission's (the model has the frame's lens fields)
     poses = survey_poses(w, h, CELL, model, min_px_per_cell=MIN_PX_PER_CELL, border_px=border)
     first = shoot(*poses[0], tilt)
 
@@ -123,7 +123,7 @@ def simulate(scene: Scene, model: CameraModel, seed: int = 0, survey_tilt_deg: f
 
     ppc = timed(need_ppc)
     if ppc > MIN_PX_PER_CELL:
-        poses = survey_poses(w, h, CELL, model, min_px_per_cell=ppc, border_px=border)
+        poses = survey_poses(w, h, CELL, model, min_px_per_cell=ppc, border_px=Mission._border(model, ppc, CELL))
         for p in poses:
             shoot(*p, tilt)
     else:

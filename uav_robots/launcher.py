@@ -23,6 +23,7 @@ from protocol.errors import MissionError, UavRobotsError
 from protocol.keys import format_ids, new_fleet_name
 from protocol.process import die_with_parent
 from protocol.security import robot_identity
+from robot_agents import forked
 from robot_agents.faults import parse_fault
 
 GRACE_S = 3.0
@@ -41,7 +42,7 @@ def free_port(kind: int = socket.SOCK_STREAM) -> int:
 @dataclass
 class Child:
     name: str
-    proc: subprocess.Popen
+    proc: subprocess.Popen | forked.Forked
     log: Path | None
 
     def tail(self, lines: int = 3) -> str:
@@ -112,6 +113,10 @@ class Launcher:
 
     def _spawn(self, name: str, package: str, argv: list[str], to_log: bool) -> Child:
         log = self.logs / f"{name}.log" if to_log else None
+        if package == "robot_agents" and forked.available():
+            child = Child(name, forked.Forked(argv, str(log) if log else None), log)
+            self.children.append(child)
+            return child
         out = open(log, "wb") if log else None
         proc = subprocess.Popen([sys.executable, "-m", package, *argv], stdout=out or None,
                                 stderr=subprocess.STDOUT if out else None, stdin=subprocess.DEVNULL,

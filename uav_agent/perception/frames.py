@@ -92,6 +92,20 @@ def _undistort_maps(width: int, height: int, K: tuple[float, ...], dist: tuple[f
     return m1, m2, valid
 
 
+def lens_margin_px(meta: CameraFrame) -> int:
+    """Pixels from each edge of the undistorted image within which some pixel has no source on
+    the sensor (a pincushion lens, or strong barrel terms, leave its corners empty): 0 for a
+    pinhole, or for a mild barrel lens whose undistorted image is whole."""
+    dist = distortion(meta)
+    if not any(dist):
+        return 0
+    _, _, valid = _undistort_maps(meta.width, meta.height, tuple(intrinsics(meta).ravel()), dist)
+    ys, xs = np.nonzero(~valid)
+    if not len(xs):
+        return 0
+    return int(np.minimum(np.minimum(xs, meta.width - 1 - xs), np.minimum(ys, meta.height - 1 - ys)).max()) + 1
+
+
 def undistorted(frame: Frame) -> tuple[np.ndarray, np.ndarray | None]:
     """The frame's image as an ideal pinhole camera with the same intrinsics would see it, and
     the mask of its pixels that came from the sensor (None: all of them)."""

@@ -22,7 +22,7 @@ from protocol.messages import CameraFrame
 from .frames import Frame, Pixels, pixels, reduction
 from .goals import goals_in
 from .markers import Sighting, read_markers, settle
-from .occupancy import MARKER_STD_RATIO, cells_in
+from .occupancy import MARKER_STD_RATIO, Cells, cells_in
 from .registration import Landmarks, Registration, register
 from .view import View, px_per_cell, sharpness
 
@@ -86,6 +86,20 @@ def _within(reg: Registration, cells) -> np.ndarray:
     return d <= reg.trust_radius
 
 
+@dataclass(eq=False)
+class Reading:
+    """One frame measured (`Fusion.measure`), not yet merged."""
+    view: View
+    report: FrameReport
+    cells: Cells | None = None         # None: the view shows no cell of the grid
+    trusted: np.ndarray | None = None  # cells close enough to the view's landmarks
+    weight: np.ndarray | None = None   # each cell's vote weight
+    markers: bool = False              # registered: its goals and markers count
+    goals: set[Cell] = field(default_factory=set)
+    sightings: list[Sighting] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+
 class Fusion:
     """A world model built one frame at a time: `add` each frame as it arrives (the survey
     flies on meanwhile), `model()` whenever the mission needs the current picture."""
@@ -110,42 +124,64 @@ class Fusion:
         self.best = 0.0                             # the heaviest view's weight
 
     def add(self, item: Pixels | Frame | CameraFrame) -> View:
+        reading = self.measure(item)
+        self.merge(reading)
+        return reading.view
+
+    def measure(self, item: Pixels | Frame | CameraFrame) -> Reading:
+        """Everything one frame says, read without touching the fusion: frames may be measured
+        on several threads at once (OpenCV releases the GIL) and merged in their order."""
         landmarks, grid = self.landmarks, self.grid
         view = prepare(item, landmarks, self.cell_size_m)
         reg = view.reg
-        self.reports.append(FrameReport(int(view.frame.meta.seq), reg.source, reg.landmarks, reg.reprojection_px,
-                                        None if reg.pose is None else tuple(round(v, 4) for v in (
-                                            reg.pose.north_m, reg.pose.east_m, reg.pose.down_m, reg.pose.roll_rad,
-                                            reg.pose.pitch_rad, reg.pose.yaw_rad)), round(view.sharpness, 3)))
+        report = FrameReport(int(view.frame.meta.seq), reg.source, reg.landmarks, reg.reprojection_px,
+                             None if reg.pose is None else tuple(round(v, 4) for v in (
+                                 reg.pose.north_m, reg.pose.east_m, reg.pose.down_m, reg.pose.roll_rad,
+                                 reg.pose.pitch_rad, reg.pose.yaw_rad)), round(view.sharpness, 3))
         cells = cells_in(view, grid)
         if cells is None:
-            return view
-        sl = (slice(cells.y0, cells.y0 + cells.seen.shape[0]), slice(cells.x0, cells.x0 + cells.seen.shape[1]))
-        self.best = max(self.best, view.sharpness)   # what a registered view of this quality would weigh
+            return Reading(view, report)
         trusted = cells.seen & _within(reg, cells)
         w = _weight(view, landmarks) * cells.centre_weight * (0.25 + 0.75 * cells.confidence) * cells.seen
         w = np.where(trusted, w, ESTIMATE_WEIGHT * w)
-        self.vote[sl] += w * np.where(cells.free, 1.0, -1.0)
-        self.total[sl] += w
-        self.seen[sl] |= cells.seen
+        reading = Reading(view, report, cells, trusted, w)
         if landmarks is not None and not reg.registered:
-            return view   # placed by the estimate alone: its cells vote (weakly), its markers and goals would lie
+            return reading   # placed by the estimate alone: its cells vote (weakly), its markers and goals would lie
+
         def inside(cell: Cell) -> bool:   # a trusted cell of this view (a set of them costs 25 ms a frame)
             x, y = cell[0] - cells.x0, cell[1] - cells.y0
             return 0 <= y < trusted.shape[0] and 0 <= x < trusted.shape[1] and bool(trusted[y, x])
 
-        frame_goals = {g for g in goals_in(view, grid) - self.shelf_cells if inside(g)}
-        self.goals |= frame_goals
-        self.marker_vote[sl] += w * (cells.marker_like & trusted)
+        reading.goals = {g for g in goals_in(view, grid) - self.shelf_cells if inside(g)}
         ys, xs = np.nonzero(cells.marker_like & trusted)
-        candidates = {(int(x) + cells.x0, int(y) + cells.y0) for x, y in zip(xs, ys)} - frame_goals - self.shelf_cells
+        candidates = {(int(x) + cells.x0, int(y) + cells.y0) for x, y in zip(xs, ys)} - reading.goals - self.shelf_cells
         # The detector looks wider: at goals (a robot parked on its goal shows its marker there)
         # and at half a marker's contrast (blur dims a marker's white below the in-place test's).
         ys, xs = np.nonzero((cells.contrast > DETECT_CONTRAST) & trusted)
         near = {(int(x) + cells.x0, int(y) + cells.y0) for x, y in zip(xs, ys)} - self.shelf_cells
-        self.sightings += [s for s in read_markers(view, candidates, grid, self.warnings, near=near | candidates)
-                           if s.cell not in self.shelf_cells and inside(s.cell)]
-        return view
+        reading.sightings = [s for s in read_markers(view, candidates, grid, reading.warnings, near=near | candidates)
+                             if s.cell not in self.shelf_cells and inside(s.cell)]
+        reading.markers = True
+        return reading
+
+    def merge(self, reading: Reading) -> None:
+        """Fold one measured frame into the model."""
+        self.reports.append(reading.report)
+        cells = reading.cells
+        if cells is None:
+            return
+        sl = (slice(cells.y0, cells.y0 + cells.seen.shape[0]), slice(cells.x0, cells.x0 + cells.seen.shape[1]))
+        self.best = max(self.best, reading.view.sharpness)   # what a registered view of this quality would weigh
+        w = reading.weight
+        self.vote[sl] += w * np.where(cells.free, 1.0, -1.0)
+        self.total[sl] += w
+        self.seen[sl] |= cells.seen
+        if not reading.markers:
+            return
+        self.goals |= reading.goals
+        self.marker_vote[sl] += w * (cells.marker_like & reading.trusted)
+        self.warnings += reading.warnings
+        self.sightings += reading.sightings
 
     def model(self) -> WorldModel:
         """The world model of every frame added so far."""

@@ -175,7 +175,7 @@ def read_markers(view: View, candidates: set[Cell], grid: tuple[int, int], warni
     in_place_quality = perimeter * 0.8   # it trusts the pose, not the marker's own corners
     for cell in sorted(candidates | set(by_cell)):
         margins = _module_margins(view, cell)
-        if margins is None or _identify(margins)[0] is None:
+        if margins is None or _identify(margins)[1] < DECODE_MIN_CONFIDENCE:   # names no code clearly
             # The pad layout's smaller marker on a white body (sim_world.camera, goal_pads).
             pad = _module_margins(view, cell, PAD_MARKER_CELLS)
             # Where the detector read the cell, the pad grid's read checks it only if it names a
