@@ -229,6 +229,14 @@ class CameraRequest(Message):
     # camera's information message: the reply is a CameraFrame without image bytes. A world
     # that sends the image anyway is still understood.
     calibration_only: bool = False
+    # Optional (v1-compatible): a region of interest in sensor pixels, read out alone as a
+    # machine-vision camera's ROI does (0 wide: the whole image). The reply is that crop: its
+    # width, height and principal point (cx, cy less the region's corner) say so; a world that
+    # sends the whole image anyway is still understood.
+    roi_x: Annotated[int, Range(0, MAX_IMAGE_SIDE)] = 0
+    roi_y: Annotated[int, Range(0, MAX_IMAGE_SIDE)] = 0
+    roi_width: Annotated[int, Range(0, MAX_IMAGE_SIDE)] = 0
+    roi_height: Annotated[int, Range(0, MAX_IMAGE_SIDE)] = 0
 
 
 @dataclass(frozen=True)

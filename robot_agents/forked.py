@@ -17,7 +17,10 @@ import signal
 import subprocess
 import sys
 
-PRELOAD = ["robot_agents.agent", "protocol.transport", "zenoh"]
+# "__main__": a forkserver child otherwise runs the launcher's main script again (the
+# `uav-robots` console script, its imports and all) before it runs the robot; the server
+# imports it once instead (a `-m` main module is never re-run).
+PRELOAD = ["__main__", "robot_agents.agent", "protocol.transport", "zenoh", "setproctitle"]
 
 
 def available() -> bool:
@@ -36,7 +39,11 @@ def _main(argv: list[str], log: str | None) -> None:
 
     from .agent import add_robot_arguments, robot_command
 
+    from setproctitle import setproctitle
+
     die_with_parent()   # the server dies with the launcher, and the robot with the server
+    # What `ps` and `pgrep -f` show: the robot's own command, not the server's.
+    setproctitle(" ".join([os.path.basename(sys.executable), "-m", "robot_agents", *argv]))
     if log is not None:
         fd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         os.dup2(fd, 1)

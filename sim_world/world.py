@@ -535,8 +535,11 @@ class World(Lifecycle):
         # The shutter opens now, as the request arrives: the vehicle may fly on while the
         # image is rendered (tens to hundreds of milliseconds, off the transport's thread).
         try:
+            from .camera import clip_roi
+
             shot = self.exposure()
-            self._camera_pool.submit(self._render_reply, q, shot)
+            roi = clip_roi(shot[2], request.roi_x, request.roi_y, request.roi_width, request.roi_height)
+            self._camera_pool.submit(self._render_reply, q, (*shot, roi))
         except RuntimeError:  # shutting down
             q.finish()
 

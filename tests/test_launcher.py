@@ -66,6 +66,8 @@ def test_robots_are_forked_processes_with_their_own_logs_sessions_and_exit_codes
             assert robots.poll() is None
             time.sleep(0.05)
         assert "robots 0-1 ready (fleet forked)" in log.read_text()
+        import psutil   # what ps and pgrep -f show: the robot's command, not the fork server's
+        assert "-m robot_agents --ids 0-1 --fleet forked" in " ".join(psutil.Process(robots.pid).cmdline())
         assert bad.wait(timeout=20) == 2
         assert (tmp_path / "bad.log").read_text().strip() == "error: give the robots to host: --id K (repeatable) or --ids 0-49"
         robots.send_signal(signal.SIGTERM)

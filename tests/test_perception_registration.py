@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -19,7 +20,9 @@ from scenarios.maps import place, resolve_map
 from sim_world.camera import PRESETS, CameraModel, Scene, encode_frame, render
 from uav_agent.perception import Landmarks, perceive
 from uav_robots.bench_perception import TARGET, bench_scene, landmarks_of, score, simulate
+from uav_agent.perception.frames import distortion, intrinsics
 from uav_agent.perception.fusion import prepare
+from uav_agent.perception.registration import homography
 from uav_agent.perception.relook import hover_points
 from uav_agent.perception.verdict import PerceptionError, explain_unplannable, raise_if_missing
 from uav_agent.perception.blur import blur_sigma
@@ -318,3 +321,59 @@ def test_a_blurred_landmark_a_bit_or_two_off_is_still_read():
     reg = register(px.gray, px.frame.meta, marks, CELL)
     assert reg.source == "landmarks" and reg.landmarks >= 2, reg.notes
     assert math.degrees(abs(reg.pose.yaw_rad)) < 0.5
+
+
+@pytest.mark.timeout(120)
+def test_an_arrival_image_of_a_region_shows_its_goals_and_enough_landmarks_and_reads_the_same():
+    """An arrival stop asks for the sensor region around its robots' goals (`region.py`): the
+    region holds every goal whole and at least MIN_LANDMARKS landmarks, through the realistic
+    lens and a tilt the shutter accepts, and perception reads the robots there as from the whole
+    image; a region over half the sensor is asked as the whole image."""
+    from dataclasses import replace
+
+    from sim_world.camera import PoseEstimator, Roi, VehicleView, camera_frame, capture_frame
+    from sim_world.world import DRONE_CAMERA
+    from uav_agent.mission import Mission
+    from uav_agent.perception.fusion import Fusion
+    from uav_agent.region import MIN_LANDMARKS, region_for
+
+    model = CameraModel(**{**DRONE_CAMERA, **PRESETS["realistic"]})
+    scene = bench_scene("warehouse-450", 50, model)
+    marks = landmarks_of(scene)
+    calibration = camera_frame((0.0, 0.0, -1.0), model, 0.0)
+    pose = (-225.0, 225.0, 104.8)
+    near = sorted((c for c in scene.robots.values() if abs(c[0] - 225) < 40 and abs(c[1] - 225) < 30))[:4]
+    assert len(near) >= 2
+    margin = Mission._border(calibration, 2000 / pose[2], CELL)
+    roi = region_for(near, calibration, pose, CELL, marks, margin, (450, 450))
+    assert roi is not None and roi.width * roi.height < 0.5 * 4000 * 3000
+    # everything it should show lies inside, with room for the tilt and the hold
+    view = VehicleView(pose[0] + 0.4, pose[1] - 0.4, -pose[2] - 0.3, 0.0, math.radians(0.9), math.radians(-0.9))
+    part = capture_frame(scene, view, model, CELL, PoseEstimator(model, 0), 5.0, 3, roi=Roi(*roi))
+    truth = replace(part, north_m=view.north_m, east_m=view.east_m, down_m=view.down_m, yaw_rad=0.0,
+                    roll_rad=view.roll_rad, pitch_rad=view.pitch_rad)
+    pinhole = cv2.perspectiveTransform(np.array([[[x + dx, y + dy]] for x, y in near for dx in (0, 1) for dy in (0, 1)],
+                                                np.float64), homography(truth, CELL)).reshape(-1, 2)
+    K = intrinsics(part)
+    rays = np.column_stack([(pinhole - K[:2, 2]) / [K[0, 0], K[1, 1]], np.ones(len(pinhole))])
+    sensor = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, np.array(distortion(part)))[0].reshape(-1, 2)
+    assert np.all((sensor >= 0) & (sensor < [part.width, part.height]))
+    fusion = Fusion(450, 450, CELL, set(scene.robots), marks)
+    seen = fusion.add(part)
+    model_ = fusion.model()
+    assert seen.reg.source == "landmarks" and seen.reg.landmarks >= MIN_LANDMARKS
+    assert all(model_.robots.get(r) == c for r, c in scene.robots.items() if c in near)
+    # A goal by the east wall, seen near the sensor's edge: the landmarks there are the wall's ring,
+    # all in one line, which cannot pin a fit across it; the region grows until some lie inland.
+    edge, wall_pose = (448, 207), (-225.0, 348.47, 104.8)
+    scene_edge = Scene(scene.free, {32: edge}, [], scene.landmarks, goal_pads=True)
+    roi = region_for([edge], calibration, wall_pose, CELL, marks, margin, (450, 450))
+    assert roi is not None and roi.x + roi.width == 4000
+    view = VehicleView(wall_pose[0] + 0.4, wall_pose[1] - 0.4, -wall_pose[2] - 0.3, 0.0, math.radians(0.9),
+                       math.radians(-0.9))
+    fusion = Fusion(450, 450, CELL, {32}, marks)
+    seen = fusion.add(capture_frame(scene_edge, view, model, CELL, PoseEstimator(model, 0), 5.0, 3, roi=Roi(*roi)))
+    assert seen.reg.source == "landmarks" and fusion.model().robots == {32: edge}
+    spread = [(5, 5), (440, 440)]
+    assert region_for(spread, calibration, pose, CELL, marks, margin, (450, 450)) is None
+    assert region_for([], calibration, pose, CELL, marks, margin, (450, 450)) is None

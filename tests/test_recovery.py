@@ -61,10 +61,10 @@ class Run:
     def robot_process(self, robot: int) -> psutil.Process:
         for child in psutil.Process(self.proc.pid).children(recursive=True):
             try:
-                cmd = child.cmdline()
+                cmd = " ".join(child.cmdline()) + " "   # a forked robot's title is one string
             except psutil.Error:
                 continue
-            if "robot_agents" in cmd and f"{robot}-{robot}" in cmd:
+            if "robot_agents" in cmd and f" {robot}-{robot} " in cmd:
                 return child
         raise AssertionError(f"no process hosts robot {robot}")
 
@@ -201,7 +201,7 @@ def test_crash_and_stall_on_the_papers_setting(tmp_path):
 
 def _vehicle_port(run: Run) -> int:
     for child in psutil.Process(run.proc.pid).children(recursive=True):
-        if "sim_world" in child.cmdline():
+        if "sim_world" in " ".join(child.cmdline()):
             ports = [c.laddr.port for c in child.net_connections(kind="udp")]
             assert len(ports) == 1, ports
             return ports[0]

@@ -330,3 +330,25 @@ def test_the_world_stops_promptly_while_it_waits_for_a_router():
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def test_a_region_of_interest_is_that_part_of_the_whole_image_with_its_principal_point_shifted(mem_world):
+    """`CameraRequest.roi_*`: the crop a camera's ROI readout gives (a region past the sensor's
+    edge is clipped to it; 0 wide is the whole image)."""
+    world, client = mem_world
+    (raw,) = client.request(world.keys.camera, encode(CameraRequest()), 10)
+    whole = decode(raw, CameraFrame)
+    (raw,) = client.request(world.keys.camera, encode(CameraRequest(roi_x=40, roi_y=24, roi_width=200,
+                                                                    roi_height=100)), 10)
+    part = decode(raw, CameraFrame)
+    assert (part.width, part.height, part.cx, part.cy) == (200, 100, whole.cx - 40, whole.cy - 24)
+    assert (part.fx, part.fy) == (whole.fx, whole.fy)
+    big = cv2.imdecode(np.frombuffer(whole.png, np.uint8), cv2.IMREAD_COLOR).astype(int)
+    small = cv2.imdecode(np.frombuffer(part.png, np.uint8), cv2.IMREAD_COLOR).astype(int)
+    assert small.shape == (100, 200, 3) and np.abs(big[24:124, 40:240] - small).max() <= 1   # ideal camera: the same
+    (raw,) = client.request(world.keys.camera, encode(CameraRequest(roi_x=whole.width - 10, roi_y=0, roi_width=500,
+                                                                    roi_height=whole.height + 5)), 10)
+    edge = decode(raw, CameraFrame)
+    assert (edge.width, edge.height) == (10, whole.height)
+    (raw,) = client.request(world.keys.camera, encode(CameraRequest(roi_x=5, roi_width=0, roi_height=50)), 10)
+    assert decode(raw, CameraFrame).width == whole.width

@@ -211,13 +211,15 @@ class Mission:
         return Fusion(self.info.width, self.info.height, self.info.cell_size_m, known_ids=known,
                       landmarks=self.landmarks)
 
-    def _shots(self, fusion, measure=None, whole=None) -> "Shots":
+    def _shots(self, fusion, measure=None, whole=None, roi=None) -> "Shots":
         """Images asked for on the move, perceived as they arrive: measured (by `measure`, else
         `fusion.measure`, frames at once) and merged into `fusion` in order, or each handed
-        whole to `whole`, which perceives it itself."""
+        whole to `whole`, which perceives it itself; only the sensor's region `roi`, if given."""
         from .shots import Shots
 
-        return Shots(lambda: self.transport.request_start(self.keys.camera, encode(CameraRequest(seq=self._next())),
+        area = {} if roi is None else {"roi_x": roi.x, "roi_y": roi.y, "roi_width": roi.width, "roi_height": roi.height}
+        return Shots(lambda: self.transport.request_start(self.keys.camera,
+                                                          encode(CameraRequest(seq=self._next(), **area)),
                                                           CAMERA_TIMEOUT_S),
                      self._took, whole or measure or fusion.measure, CAMERA_TIMEOUT_S,
                      fence=lambda: self.transport.request(self.keys.world_info, encode(WorldInfoRequest(seq=self._next())),
@@ -820,11 +822,28 @@ class Mission:
             glance.took = time.perf_counter() - t
             glance.off = sorted(r for r, c in model.robots.items() if r in plan.paths and tuple(c) != plan.cell(r, k))
 
-        glance.shots = self._shots(fusion, whole=judge)
+        region = None
+        if stop is not None:
+            region = self._region(stop.pose, [tuple(plan.goals[r]) for r in sorted(stop.robots) if r in plan.goals])
+        glance.shots = self._shots(fusion, whole=judge, roi=region)
         self._glances.append(glance)
         glance.shots.shoot(None if stop is None else stop.pose)
         self.clock.timings["monitor"] = round(self.clock.timings.get("monitor", 0.0) + time.perf_counter() - t, 4)
         self.monitored += 1
+
+    def _region(self, pose, cells: list[Cell]):
+        """The sensor region an arrival stop's image from `pose` needs to show `cells` (its robots'
+        goals): those cells and the landmarks around them (`region.py`); None for the whole image
+        (no cells, no calibration, or a region nearly as large). The verification's look after
+        the last tick takes whole images: what a region missed, it sees."""
+        from .region import region_for
+
+        if not cells or self._camera is None:
+            return None
+        c = self.info.cell_size_m
+        ppc = min(self._camera.fx, self._camera.fy) * c / max(pose[2], 1e-6)
+        return region_for(cells, self._camera, pose, c, self.landmarks, self._border(self._camera, ppc, c),
+                          (self.info.width, self.info.height))
 
     def _monitor_seen(self, wait: bool = False) -> list[int]:
         """The robots the monitoring images perceived since the last call (all of them, if `wait`)

@@ -95,15 +95,18 @@ def path_length(poses, start: tuple[float, float]) -> float:
     return sum(math.dist(a, b) for a, b in zip(points, points[1:]))
 
 
+def nearest_pose(poses, cell, cell_size_m: float) -> int:
+    """The index of the pose nearest the centre of `cell` (x, y)."""
+    north, east = -(cell[1] + 0.5) * cell_size_m, (cell[0] + 0.5) * cell_size_m
+    return min(range(len(poses)), key=lambda i: math.hypot(poses[i][0] - north, poses[i][1] - east))
+
+
 def covering(poses: list[SurveyPose], cells, cell_size_m: float) -> list[SurveyPose]:
     """The survey poses, in survey order, whose images hold `cells` (x, y): each cell's nearest
     pose. Footprints of one survey overlap by a cell, so a cell lies wholly inside its nearest one."""
     if not poses:
         return []
-    wanted = set()
-    for x, y in cells:
-        north, east = -(y + 0.5) * cell_size_m, (x + 0.5) * cell_size_m
-        wanted.add(min(range(len(poses)), key=lambda i: math.hypot(poses[i][0] - north, poses[i][1] - east)))
+    wanted = {nearest_pose(poses, cell, cell_size_m) for cell in cells}
     return [p for i, p in enumerate(poses) if i in wanted]
 
 

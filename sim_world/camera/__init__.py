@@ -36,10 +36,10 @@ from .degrade import motion_kernel
 from .encode import camera_frame, encode_frame, encode_image
 from .estimate import PoseEstimator
 from .model import (DEFAULT_CAMERA_PRESET, KEYS, PRESETS, CameraModel, camera_model_from, camera_options)
-from .render import (ARUCO_DICTIONARY, MARKER_IDS, CameraPose, Scene, camera_rotation, cell_centre_ned,
-                     floor_homography, render, scene_landmarks)
+from .render import (ARUCO_DICTIONARY, MARKER_IDS, CameraPose, Roi, Scene, camera_rotation, cell_centre_ned,
+                     clip_roi, floor_homography, render, scene_landmarks)
 
 __all__ = ["ARUCO_DICTIONARY", "CameraModel", "CameraPose", "DEFAULT_CAMERA_PRESET", "KEYS", "MARKER_IDS", "PRESETS",
-           "PoseEstimator", "Scene", "VehicleView", "calibration_frame", "camera_frame", "camera_model_from", "camera_options",
-           "camera_rotation", "capture_frame", "cell_centre_ned", "encode_frame", "encode_image", "floor_homography",
+           "PoseEstimator", "Roi", "Scene", "VehicleView", "calibration_frame", "camera_frame", "camera_model_from", "camera_options",
+           "camera_rotation", "capture_frame", "cell_centre_ned", "clip_roi", "encode_frame", "encode_image", "floor_homography",
            "motion_kernel", "prepare", "render", "scene_landmarks"]

@@ -10,7 +10,7 @@ from .degrade import prepare_degrade
 from .encode import camera_frame, encode_frame
 from .estimate import PoseEstimator
 from .model import CameraModel
-from .render import CameraPose, Scene, lens_for, render
+from .render import CameraPose, Roi, Scene, lens_for, render
 
 
 class VehicleView(NamedTuple):
@@ -45,11 +45,13 @@ def calibration_frame(view: VehicleView, model: CameraModel, estimator: PoseEsti
 
 
 def capture_frame(scene: Scene, view: VehicleView, model: CameraModel, cell_size_m: float,
-                  estimator: PoseEstimator, time_s: float, seq: int = 0, seed: int | None = None) -> CameraFrame:
+                  estimator: PoseEstimator, time_s: float, seq: int = 0, seed: int | None = None,
+                  roi: Roi | None = None) -> CameraFrame:
+    """An exposure from `view`: the whole image, or the sensor's region `roi` (see render)."""
     pose = _camera_pose(view, model)
     image = render(scene, pose, model, cell_size_m, seed=seed if seed is not None else seq,
-                   velocity_ned=(view.vel_north, view.vel_east, view.vel_down))
-    return encode_frame(image, estimator.estimate(pose, time_s), model, time_s, seq)
+                   velocity_ned=(view.vel_north, view.vel_east, view.vel_down), roi=roi)
+    return encode_frame(image, estimator.estimate(pose, time_s), model, time_s, seq, roi)
 
 
 def prepare(model: CameraModel) -> None:

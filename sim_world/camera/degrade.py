@@ -87,7 +87,11 @@ def motion_kernel(dx: float, dy: float) -> np.ndarray:
 
 
 def degrade(image: np.ndarray, model: CameraModel, seed: int | None,
-            motion_px: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+            motion_px: tuple[float, float] = (0.0, 0.0), origin: tuple[int, int] = (0, 0)) -> np.ndarray:
+    """Blur, motion, lighting and vignetting, noise; `image` is the sensor's region whose
+    top-left pixel is `origin`, shaded as that part of the whole image is."""
+    x0, y0 = origin
+    h, w = image.shape[:2]
     moving = math.hypot(*motion_px) >= MIN_MOTION_PX
     shaded = model.lighting > 0 or model.vignetting > 0
     if not (shaded or moving or model.blur_sigma > 0 or model.noise_std > 0):
@@ -98,10 +102,11 @@ def degrade(image: np.ndarray, model: CameraModel, seed: int | None,
         image = cv2.filter2D(image, -1, motion_kernel(*motion_px), borderType=cv2.BORDER_REPLICATE)
     # Gain and noise in saturating uint8 arithmetic: one pass each, no float copy of the frame.
     if shaded:
-        image = cv2.multiply(image, _gain(model.width, model.height, model.lighting, model.lighting_angle_deg,
-                                          model.vignetting, model.cx, model.cy), scale=1 / 255.0)
+        gain = _gain(model.width, model.height, model.lighting, model.lighting_angle_deg, model.vignetting,
+                     model.cx, model.cy)[y0:y0 + h, x0:x0 + w]
+        image = cv2.multiply(image, gain, scale=1 / 255.0)
     if model.noise_std > 0:
         dy, dx = np.random.default_rng(seed).integers(0, NOISE_PAD, size=2)
-        window = _noise_bank(model.width, model.height, model.noise_std)[dy:dy + model.height, dx:dx + model.width]
+        window = _noise_bank(model.width, model.height, model.noise_std)[dy + y0:dy + y0 + h, dx + x0:dx + x0 + w]
         image = cv2.add(image, window, dtype=cv2.CV_8U)
     return image

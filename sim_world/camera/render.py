@@ -256,6 +256,24 @@ def _draw_discs_and_tags(tex: np.ndarray, scene: Scene, x0: int, y0: int, x1: in
                 tex[py + ppc // 4:py + ppc - ppc // 4, px + ppc // 4:px + ppc - ppc // 4] = 0
 
 
+class Roi(NamedTuple):
+    """A region of the sensor, in pixels: its top-left corner and size."""
+    x: int
+    y: int
+    width: int
+    height: int
+
+
+def clip_roi(model: CameraModel, x: int, y: int, width: int, height: int) -> Roi | None:
+    """The requested region within the sensor; None for the whole image (0 wide or high, or a
+    region that covers it all)."""
+    if width <= 0 or height <= 0:
+        return None
+    x0, y0 = min(max(0, x), model.width - 1), min(max(0, y), model.height - 1)
+    roi = Roi(x0, y0, min(width, model.width - x0), min(height, model.height - y0))
+    return None if (roi.width, roi.height) == (model.width, model.height) else roi
+
+
 class _Lens(NamedTuple):
     """A distorting lens as a remap: the pinhole canvas to render, and where each output pixel samples it."""
     K: np.ndarray            # the canvas's pinhole intrinsics
@@ -329,18 +347,32 @@ def _render_pinhole(scene: Scene, pose: CameraPose, K: np.ndarray, size: tuple[i
 
 
 def render(scene: Scene, pose: CameraPose | tuple, model: CameraModel, cell_size_m: float,
-           seed: int | None = None, velocity_ned: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
+           seed: int | None = None, velocity_ned: tuple[float, float, float] = (0.0, 0.0, 0.0),
+           roi: Roi | None = None) -> np.ndarray:
     """The BGR uint8 image the camera sees from the TRUE `pose` (north, east, down[, yaw[, roll[,
-    pitch]]]) while moving at `velocity_ned` m/s (motion blur over `model.exposure_ms`)."""
+    pitch]]]) while moving at `velocity_ned` m/s (motion blur over `model.exposure_ms`); only
+    the sensor's region `roi` if given, the same pixels that region of the whole image has
+    (but for the noise's draw), at its share of the cost."""
     p = as_pose(pose)
+    x0, y0, w, h = roi if roi is not None else (0, 0, model.width, model.height)
     lens = lens_for(model)
     if lens is None:
-        image = _render_pinhole(scene, p, model.K, (model.width, model.height), cell_size_m)
+        K = model.K.copy()
+        K[0, 2] -= x0
+        K[1, 2] -= y0
+        image = _render_pinhole(scene, p, K, (w, h), cell_size_m)
     else:
-        wide = _render_pinhole(scene, p, lens.K, lens.size, cell_size_m)
-        image = cv2.remap(wide, lens.map1, lens.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                          borderValue=OUTSIDE_BGR)
-    return degrade(image, model, seed, _image_motion_px(p, model, velocity_ned))
+        map1, map2 = lens.map1[y0:y0 + h, x0:x0 + w], lens.map2[y0:y0 + h, x0:x0 + w]
+        # The part of the pinhole canvas the region samples (map1 holds each pixel's whole source texel).
+        lo = np.array([map1[..., 0].min(), map1[..., 1].min()], np.int64)
+        hi = np.array([map1[..., 0].max(), map1[..., 1].max()], np.int64) + 2
+        K = lens.K.copy()
+        K[0, 2] -= lo[0]
+        K[1, 2] -= lo[1]
+        wide = _render_pinhole(scene, p, K, (int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)), cell_size_m)
+        image = cv2.remap(wide, map1 - lo.astype(np.int16), map2, cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=OUTSIDE_BGR)
+    return degrade(image, model, seed, _image_motion_px(p, model, velocity_ned), (x0, y0))
 
 
 def _image_motion_px(pose: CameraPose, model: CameraModel, velocity_ned: tuple[float, float, float]
