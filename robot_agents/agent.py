@@ -30,7 +30,7 @@ from protocol.keys import DEFAULT_FLEET, Keys, format_ids, parse_ids, robot_id_f
 from protocol.log import Throttled
 from protocol.messages import (Done, MissionEnd, MoveAhead, MoveBatch, MoveBatchResult, MoveRequest, MoveResult,
                                MovesJudged, Plan, RobotState, StateBatch, Tick, decode, encode)
-from protocol.process import Lifecycle
+from protocol.process import Lifecycle, command_main, one_command
 from protocol.transport import Transport, open_session
 
 from .faults import Fault, parse_fault
@@ -357,6 +357,13 @@ def add_robot_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fault", action="append", default=[], metavar="SPEC",
                    help="inject a fault into a hosted robot (repeatable): crash:ROBOT@TICK, "
                         "stall:ROBOT@TICK:TICKS or liar:ROBOT")
+
+
+def robot_main(argv: list[str] | None = None) -> int:
+    """`python -m robot_agents ARGV` (argv None: the process's own arguments)."""
+    return command_main(one_command("python -m robot_agents",
+                                    "Simulated robots that execute plans tick by tick over Zenoh.",
+                                    add_robot_arguments, robot_command), argv)
 
 
 def robot_command(args: argparse.Namespace) -> int:

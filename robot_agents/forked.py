@@ -35,11 +35,11 @@ def _context():
 
 def _main(argv: list[str], log: str | None) -> None:
     """A robot process's life, as `python -m robot_agents ARGV` with its output to `log`."""
-    from protocol.process import command_main, die_with_parent, one_command
-
-    from .agent import add_robot_arguments, robot_command
-
     from setproctitle import setproctitle
+
+    from protocol.process import die_with_parent
+
+    from .agent import robot_main
 
     die_with_parent()   # the server dies with the launcher, and the robot with the server
     # What `ps` and `pgrep -f` show: the robot's own command, not the server's.
@@ -53,9 +53,7 @@ def _main(argv: list[str], log: str | None) -> None:
         sys.stderr = open(2, "w", buffering=1, closefd=False)
     # The server ignores SIGINT (multiprocessing protects it from ^C); a robot ends on it.
     signal.signal(signal.SIGINT, signal.default_int_handler)
-    sys.exit(command_main(one_command("python -m robot_agents",
-                                      "Simulated robots that execute plans tick by tick over Zenoh.",
-                                      add_robot_arguments, robot_command), argv))
+    sys.exit(robot_main(argv))
 
 
 class Forked:

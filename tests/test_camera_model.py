@@ -419,3 +419,20 @@ def test_a_realistic_world_serves_jpeg_frames_with_an_estimated_pose_and_its_lan
     seen = set(_detect(image))
     assert len(seen) >= 6 and seen <= published
     assert set(_detect(image, "DICT_4X4_1000")) == set(range(4))
+
+
+def test_a_region_of_the_sensor_renders_the_pixels_that_region_of_the_whole_image_has():
+    """Through the realistic lens, lighting and vignetting (noise off: its draw differs), the
+    region is rendered alone from the part of the pinhole canvas it samples."""
+    from scenarios.maps import resolve_map
+    from sim_world.camera import Roi, Scene, camera_model_from, render
+
+    model = camera_model_from("realistic,noise_std=0,width=1280,height=960")
+    _, free = resolve_map("warehouse-small", 0)
+    scene = Scene(free, {3: (2, 2)}, [(5, 5)])
+    pose = (-9.0, 12.0, -8.0, 0.1, 0.01, -0.01)
+    whole = render(scene, pose, model, 1.0).astype(int)
+    for roi in (Roi(0, 0, 200, 150), Roi(700, 400, 300, 250), Roi(1180, 860, 100, 100)):
+        part = render(scene, pose, model, 1.0, roi=roi).astype(int)
+        assert part.shape == (roi.height, roi.width, 3)
+        assert np.abs(part - whole[roi.y:roi.y + roi.height, roi.x:roi.x + roi.width]).max() <= 1

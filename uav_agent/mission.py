@@ -834,11 +834,11 @@ class Mission:
     def _region(self, pose, cells: list[Cell]):
         """The sensor region an arrival stop's image from `pose` needs to show `cells` (its robots'
         goals): those cells and the landmarks around them (`region.py`); None for the whole image
-        (no cells, no calibration, or a region nearly as large). The verification's look after
+        (no cells, or a region nearly as large). The verification's look after
         the last tick takes whole images: what a region missed, it sees."""
         from .region import region_for
 
-        if not cells or self._camera is None:
+        if not cells:
             return None
         c = self.info.cell_size_m
         ppc = min(self._camera.fx, self._camera.fy) * c / max(pose[2], 1e-6)

@@ -361,6 +361,10 @@ def render(scene: Scene, pose: CameraPose | tuple, model: CameraModel, cell_size
         K[0, 2] -= x0
         K[1, 2] -= y0
         image = _render_pinhole(scene, p, K, (w, h), cell_size_m)
+    elif roi is None:
+        wide = _render_pinhole(scene, p, lens.K, lens.size, cell_size_m)
+        image = cv2.remap(wide, lens.map1, lens.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                          borderValue=OUTSIDE_BGR)
     else:
         map1, map2 = lens.map1[y0:y0 + h, x0:x0 + w], lens.map2[y0:y0 + h, x0:x0 + w]
         # The part of the pinhole canvas the region samples (map1 holds each pixel's whole source texel).
