@@ -109,6 +109,13 @@ class Keys:
     def alive_uav(self) -> str:
         return f"{self.prefix}/alive/uav"
 
+    def alive_observer(self, name: str) -> str:
+        return f"{self.prefix}/alive/observer/{name}"
+
+    @property
+    def alive_observers(self) -> str:
+        return f"{self.prefix}/alive/observer/*"
+
     # world services (queryables)
     @property
     def camera(self) -> str:

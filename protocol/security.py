@@ -57,10 +57,12 @@ def _grants(k: Keys, who: Identity) -> list[tuple[list[str], str, list[str]]]:
     """(messages, flow, key expressions) an identity is allowed; ingress is what it sends to the router."""
     alive_uav = [k.alive_uav]
     if who.name == OBSERVER:
-        # Reads every put of the fleet (the recording, the live view); sends nothing.
+        # Reads every put of the fleet (the recording, the live view); sends nothing ...
         return [
             (["declare_subscriber"], "ingress", [f"{k.prefix}/**"]),
             (["put"], "egress", [f"{k.prefix}/**"]),
+            # ... and says it listens, so that a UAV told to wait for it takes off recorded.
+            (["liveliness_token"], "ingress", [k.alive_observers]),
         ]
     if who.name == WORLD:
         return [

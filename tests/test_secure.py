@@ -171,6 +171,15 @@ def test_the_observer_hears_everything_and_can_say_nothing(fleet_dir):
         assert [decode(p, Tick).k for key, p in at_r0.items] == [1]
         assert [(key, decode(p, RobotState).status if key == k.state(0) else None) for key, p in at_hub.items
                 if key != k.tick] == [(k.state(0), "stepping")]
+        # It may say that it listens (a UAV waits for recorders), and nothing else through liveliness.
+        tokens = Inbox()
+        hub.watch_alive(f"{k.prefix}/alive/**", lambda key, alive: alive and tokens(key, b""))
+        obs.announce(k.alive_uav)
+        obs.announce(k.alive_robot(0))
+        obs.announce(k.alive_observer("rec1"))
+        assert tokens.wait_for(lambda key, p: key == k.alive_observer("rec1"))
+        time.sleep(0.5)
+        assert sorted({key for key, _ in tokens.items} - {k.alive_uav}) == [k.alive_observer("rec1")]
 
 
 def test_only_the_world_answers_world_queries(fleet_dir):

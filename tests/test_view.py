@@ -68,6 +68,8 @@ def test_mission_mcap_holds_the_mission(recorded):
     assert counts["/uav/pose"] / flight_s >= 3.0, f"{counts['/uav/pose']} poses in {flight_s:.1f} s"
     # While it climbs and flies to its survey pose it is seen moving (the images alone show two places):
     # several distinct positions between take-off and perception, from low down up to the survey height.
+    # The UAV waited for the recorder (--observers 1): every status is there, from the first.
+    assert [phase for _, phase in rec.phases][:2] == ["connecting", "takeoff"], rec.phases[:3]
     start = next(ns for ns, phase in rec.phases if phase == "takeoff")
     seen = next(ns for ns, phase in rec.phases if phase == "perceive")
     flying = [p for ns, p in rec.poses if start <= ns <= seen]

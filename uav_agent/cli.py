@@ -48,6 +48,9 @@ def add_uav_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tick-timeout", type=float, default=10.0,
                    help="seconds a robot may take to report a tick before it counts as stalled (default 10)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--observers", type=int, default=0, metavar="N",
+                   help="before anything else, wait up to 5 s for N recorders' alive/observer tokens, so that "
+                        "they record the mission from its start (default 0: wait for none)")
     p.add_argument("--summary", choices=("text", "json", "none"), default="text",
                    help="the end of mission summary: lines for a person, one JSON object (report.json's), or none")
     p.add_argument("--monitor-every", type=int, default=None, metavar="K",
@@ -70,7 +73,7 @@ def uav_command(a: argparse.Namespace) -> int:
                         time_limit_s=a.time_limit, fallback=not a.no_fallback, seed=a.seed,
                         out=Path(a.out) if a.out else None, tick_timeout_s=a.tick_timeout,
                         tick_rate_hz=a.tick_rate,
-                        monitor_every=a.monitor_every)
+                        monitor_every=a.monitor_every, observers=max(0, a.observers))
     report = Mission(cfg, Progress(enabled=not a.quiet)).run()
     if a.summary == "text":
         print(summary(report, cfg.out), flush=True)

@@ -23,6 +23,7 @@ class FleetLink:
         self.alive: set[int] = set()
         self.lost: set[int] = set()
         self.world_alive = False
+        self.observers: set[str] = set()        # recorders and views that said they listen
         self.acks: dict[int, PlanAck] = {}
         self.last_tick: dict[int, int] = {}
         self.cells: dict[int, tuple[int, int]] = {}
@@ -41,6 +42,7 @@ class FleetLink:
             transport.subscribe(keys.all_done, self._on_done, inline=True),
             transport.watch_alive(keys.alive_robots, self._on_robot_alive),
             transport.watch_alive(keys.alive_world, self._on_world_alive),
+            transport.watch_alive(keys.alive_observers, self._on_observer_alive),
         ]
 
     @property
@@ -133,6 +135,11 @@ class FleetLink:
     def _on_world_alive(self, key: str, alive: bool) -> None:
         with self.cv:
             self.world_alive = alive
+            self.cv.notify_all()
+
+    def _on_observer_alive(self, key: str, alive: bool) -> None:
+        with self.cv:
+            (self.observers.add if alive else self.observers.discard)(key)
             self.cv.notify_all()
 
     def wait_until(self, ready: Callable[[], bool], timeout: float, failure: Callable[[], str],

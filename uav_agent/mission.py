@@ -37,6 +37,7 @@ if TYPE_CHECKING:
 QUERY_TIMEOUT_S = 10.0
 CAMERA_TIMEOUT_S = 30.0    # a 12 MP image rendered on a loaded machine, or sent over a slow link
 ABORT_LAND_TIMEOUT_S = 60.0
+OBSERVER_WAIT_S = 5.0      # for the recorders the UAV was told of (MissionConfig.observers); then it goes on
 LEVEL_TILT_DEG = 1.0       # a shutter (survey, fresh look, closer look) waits for the body, and its camera, this level ...
 LEVEL_WAIT_S = 3.0         # ... for at most this long: a vehicle that has just braked hangs at its tilt limit
 STARTUP_LONGEST = 4         # robots still coming up extend the start-up wait, to this many times it
@@ -67,6 +68,7 @@ class MissionConfig:
     seed: int = 0
     out: Path | None = None
     startup_timeout_s: float = 30.0
+    observers: int = 0                 # wait (OBSERVER_WAIT_S at most) for this many recorders before the first status
     tick_timeout_s: float = 10.0
     tick_rate_hz: float = 0.0          # at most this many ticks per second (0: as fast as the fleet goes)
     monitor_every: int | None = None   # an image every this many ticks while robots move (0: never; None: auto)
@@ -278,6 +280,7 @@ class Mission:
             self._token = self.transport.announce(self.keys.alive_uav)
             self.previewer = Previewer(lambda f: self.transport.put(self.keys.uav_frame, encode(f)))
             self.fleet = FleetLink(self.transport, self.keys)
+            self._await_observers()
             # Listening on MAVLink while the world starts: its vehicle's first heartbeat is not lost.
             self.flight = Flight(self.cfg.mavlink_url).open()
             self._status("connecting", message="waiting for the world on Zenoh")
@@ -339,6 +342,18 @@ class Mission:
                 self.fleet.close()
             self.transport.close()
             self.progress.close()
+
+    def _await_observers(self) -> None:
+        """A recorder started beside the UAV connects once the UAV listens; whatever the UAV publishes
+        before that is lost to it (Zenoh keeps no history), the take-off included."""
+        n = self.cfg.observers
+        if n <= 0:
+            return
+        try:
+            self.fleet.wait_until(lambda: len(self.fleet.observers) >= n, OBSERVER_WAIT_S,
+                                  lambda: f"{len(self.fleet.observers)} of {n} observer(s) within {OBSERVER_WAIT_S:g} s")
+        except MissionError as exc:
+            self.progress.phase("connecting", f"not waiting longer for a recorder ({exc}): it may miss the start")
 
     def _warm_up_planner(self) -> None:
         from .planning import warm

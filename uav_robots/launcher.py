@@ -78,6 +78,7 @@ class Launcher:
         self.robots_due = math.inf
         self.secure_dir: Path | None = None       # certificates and configs, with --secure
         self.secure_temporary = False
+        self.configs: dict[str, str] = {}           # identity -> its Zenoh config, with --secure
         if args.secure is not None:
             self._secure(args.secure)
 
@@ -127,6 +128,10 @@ class Launcher:
         self.children.append(child)
         return child
 
+    def records(self) -> bool:
+        """Whether the launcher's observer can join: a --secure fleet needs its listen-only identity."""
+        return self.secure_dir is None or Path(self.configs.get("observer", "")).is_file()
+
     def start(self, free) -> Child:
         """Starts the UAV and the world on the grid `free` (`start_robots` the robots)."""
         from uav_agent.planning import warm
@@ -147,6 +152,7 @@ class Launcher:
                                   *(["--planner", a.planner] if a.planner else []),
                                   *(["--no-fallback"] if a.no_fallback else []),
                                   *(["--quiet"] if a.quiet or a.json else []),
+                                  *(["--observers", "1"] if self.records() else []),
                                   *(["--summary", "none"] if a.json else [])], to_log=False)
         self._spawn("world", "sim_world", [*common, *self.session_args("world"), "--map", a.map,
                               "--robots", str(a.robots), "--seed", str(a.seed),
@@ -300,15 +306,12 @@ def start_observer(launcher: Launcher):
     """The recorder: a Zenoh client of the fleet, connected to the UAV's endpoint (the UAV listens)."""
     from .observer import Observer
 
-    config = None
-    if launcher.secure_dir is not None:   # the fleet's listen-only identity
-        config = launcher.configs.get("observer")
-        if config is None or not Path(config).is_file():
-            print("uav-robots: no recording: this --secure directory has no observer identity "
-                  "(make a new one with `uav-robots secure init`)", file=sys.stderr, flush=True)
-            return None
+    if not launcher.records():
+        print("uav-robots: no recording: this --secure directory has no observer identity "
+              "(make a new one with `uav-robots secure init`)", file=sys.stderr, flush=True)
+        return None
     try:
-        return Observer(launcher.endpoint, launcher.fleet, config_file=config)
+        return Observer(launcher.endpoint, launcher.fleet, config_file=launcher.configs.get("observer"))
     except MissionError as exc:
         print(f"uav-robots: no recording: {exc}", file=sys.stderr, flush=True)
         return None

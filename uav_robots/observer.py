@@ -5,6 +5,7 @@ key, payload) to a list, so a slow consumer never holds back a publisher; decodi
 """
 from __future__ import annotations
 
+import secrets
 import threading
 import time
 from dataclasses import dataclass
@@ -29,6 +30,8 @@ class Observer:
         self._transport: Transport | None = open_session("observer", connect=[endpoint], config_file=config_file,
                                                          wait_s=wait_s)
         self._transport.subscribe(f"{self.keys.prefix}/**", self._on_sample)
+        # Listening from here on: a UAV started with --observers waits for this before its first status.
+        self._transport.announce(self.keys.alive_observer(secrets.token_hex(4)))
 
     def _on_sample(self, key: str, payload: bytes) -> None:
         with self._lock:
