@@ -5,6 +5,7 @@ perception sees only the images and their CameraFrame metadata.
 """
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 
@@ -352,19 +353,52 @@ def test_a_frame_with_cells_far_over_the_needed_resolution_is_read_smaller_and_t
     assert score(fusion.model(), scene) == (0, 0, 0)
 
 
+def test_a_tilt_within_its_margin_keeps_the_level_footprint_in_view():
+    """Whatever way the camera leans by up to `tilt`, the floor a level camera shows inside the
+    tilt margin stays in the image; the centre's fx * tan(tilt), which the survey used to count,
+    does not hold it at a 45-degree edge (a wall robot went unseen)."""
+    from sim_world.world import DRONE_CAMERA
+    from uav_agent.survey import tilt_margin_px
+
+    model = camera_model_from("ideal", DRONE_CAMERA)
+    tilt = math.radians(0.5)
+    mx, my = tilt_margin_px(model, tilt)
+    assert mx > math.ceil(model.fx * math.tan(tilt)) and my > 0
+    level = camera_frame((0.0, 0.0, -100.0), model, 0.0)
+    inner = np.array([[[x, y]] for x in np.linspace(mx, model.width - 1 - mx, 9)
+                      for y in np.linspace(my, model.height - 1 - my, 7)], np.float64)
+    floor = cv2.perspectiveTransform(inner, np.linalg.inv(homography(level, 1.0)))
+    centre_only = math.ceil(model.fx * math.tan(tilt))
+    naive = np.array([[[x, y]] for x in (centre_only, model.width - 1 - centre_only)
+                      for y in np.linspace(centre_only, model.height - 1 - centre_only, 7)], np.float64)
+    naive_floor = cv2.perspectiveTransform(naive, np.linalg.inv(homography(level, 1.0)))
+    escaped = 0
+    for phi in np.linspace(0, 2 * math.pi, 36, endpoint=False):
+        for lean in (tilt, 0.999 * tilt):
+            tilted = dataclasses.replace(level, roll_rad=lean * math.cos(phi), pitch_rad=lean * math.sin(phi))
+            px = cv2.perspectiveTransform(floor, homography(tilted, 1.0)).reshape(-1, 2)
+            assert np.all((px >= -0.5) & (px <= [model.width - 0.5, model.height - 0.5])), (phi, lean)
+            px = cv2.perspectiveTransform(naive_floor, homography(tilted, 1.0)).reshape(-1, 2)
+            escaped += int(np.any((px < -0.5) | (px > [model.width - 0.5, model.height - 0.5])))
+    assert escaped > 0
+
+
 def test_the_survey_border_counts_the_lens_the_tilt_and_the_hold_and_the_450_floor_takes_nine_images():
-    """The border is what the lens leaves empty, a 1-degree tilt and the hover tolerance: the
-    realistic camera's mild barrel lens leaves nothing empty, a pincushion lens its corners."""
+    """The border is what the lens leaves empty, the tilt the shutter accepts and the hover
+    tolerance: the realistic camera's mild barrel lens leaves nothing empty, a pincushion lens
+    its corners."""
     from sim_world.world import DRONE_CAMERA
     from uav_agent.mission import LEVEL_TILT_DEG, Mission
     from uav_agent.perception.frames import lens_margin_px
+    from uav_agent.survey import tilt_margin_px
 
     realistic, pinhole = camera_model_from("realistic", DRONE_CAMERA), camera_model_from("ideal", DRONE_CAMERA)
     pincushion = camera_model_from("realistic,k1=0.1", DRONE_CAMERA)
     assert lens_margin_px(realistic) == lens_margin_px(pinhole) == 0
     assert lens_margin_px(pincushion) > 100
-    tilt = math.ceil(2000 * math.tan(math.radians(LEVEL_TILT_DEG)))
-    assert Mission._border(realistic, 19.0, 1.0) == Mission._border(pinhole, 19.0, 1.0) == 8 + tilt + 19
-    assert Mission._border(pincushion, 19.0, 1.0) == 8 + lens_margin_px(pincushion) + tilt + 19
+    tx, ty = tilt_margin_px(realistic, math.radians(LEVEL_TILT_DEG))
+    assert Mission._border(realistic, 19.0, 1.0) == Mission._border(pinhole, 19.0, 1.0) == (8 + tx + 19, 8 + ty + 19)
+    lens = lens_margin_px(pincushion)
+    assert Mission._border(pincushion, 19.0, 1.0) == (8 + lens + tx + 19, 8 + lens + ty + 19)
     poses = survey_poses(450, 450, CELL, realistic, min_px_per_cell=19.0, border_px=Mission._border(realistic))
     assert len(poses) == 9 and 2000 / poses[0].alt_m >= 19.0

@@ -333,7 +333,7 @@ def test_an_arrival_image_of_a_region_shows_its_goals_and_enough_landmarks_and_r
 
     from sim_world.camera import PoseEstimator, Roi, VehicleView, camera_frame, capture_frame
     from sim_world.world import DRONE_CAMERA
-    from uav_agent.mission import Mission
+    from uav_agent.mission import LEVEL_TILT_DEG, Mission
     from uav_agent.perception.fusion import Fusion
     from uav_agent.region import MIN_LANDMARKS, region_for
 
@@ -344,11 +344,12 @@ def test_an_arrival_image_of_a_region_shows_its_goals_and_enough_landmarks_and_r
     pose = (-225.0, 225.0, 104.8)
     near = sorted((c for c in scene.robots.values() if abs(c[0] - 225) < 40 and abs(c[1] - 225) < 30))[:4]
     assert len(near) >= 2
-    margin = Mission._border(calibration, 2000 / pose[2], CELL)
+    margin = max(Mission._border(calibration, 2000 / pose[2], CELL))
     roi = region_for(near, calibration, pose, CELL, marks, margin, (450, 450))
     assert roi is not None and roi.width * roi.height < 0.5 * 4000 * 3000
     # everything it should show lies inside, with room for the tilt and the hold
-    view = VehicleView(pose[0] + 0.4, pose[1] - 0.4, -pose[2] - 0.3, 0.0, math.radians(0.9), math.radians(-0.9))
+    lean = math.radians(LEVEL_TILT_DEG) / math.sqrt(2)   # the most the shutter accepts, both ways at once
+    view = VehicleView(pose[0] + 0.4, pose[1] - 0.4, -pose[2] - 0.3, 0.0, lean, -lean)
     part = capture_frame(scene, view, model, CELL, PoseEstimator(model, 0), 5.0, 3, roi=Roi(*roi))
     truth = replace(part, north_m=view.north_m, east_m=view.east_m, down_m=view.down_m, yaw_rad=0.0,
                     roll_rad=view.roll_rad, pitch_rad=view.pitch_rad)

@@ -38,7 +38,7 @@ QUERY_TIMEOUT_S = 10.0
 CAMERA_TIMEOUT_S = 30.0    # a 12 MP image rendered on a loaded machine, or sent over a slow link
 ABORT_LAND_TIMEOUT_S = 60.0
 OBSERVER_WAIT_S = 5.0      # for the recorders the UAV was told of (MissionConfig.observers); then it goes on
-LEVEL_TILT_DEG = 1.0       # a shutter (survey, fresh look, closer look) waits for the body, and its camera, this level ...
+LEVEL_TILT_DEG = 0.6       # a shutter (survey, fresh look, closer look) waits for the body, and its camera, this level ...
 LEVEL_WAIT_S = 3.0         # ... for at most this long: a vehicle that has just braked hangs at its tilt limit
 STARTUP_LONGEST = 4         # robots still coming up extend the start-up wait, to this many times it
 PLAN_RESEND_S = 2.0        # a plan not acknowledged within this is put again
@@ -483,17 +483,19 @@ class Mission:
 
     @staticmethod
     def _border(camera: CameraFrame, px_per_cell: float = MissionConfig.min_px_per_cell,
-                cell_size_m: float = 1.0) -> int:
-        """Pixels of each image the survey does not count on: where the lens leaves the undistorted
-        image empty; how far a tilt the shutter accepts (LEVEL_TILT_DEG: a body-fixed camera, a
-        hover wobble) swings the footprint, fx * tan(tilt) at any altitude; and how far the
-        vehicle may hold from its pose (the hover tolerance, sideways and in height: about as
-        many pixels as it is metres times the survey's pixels per metre, each)."""
+                cell_size_m: float = 1.0) -> tuple[int, int]:
+        """Pixels (left and right, top and bottom) of each image the survey does not count on:
+        where the lens leaves the undistorted image empty; how far a tilt the shutter accepts
+        (LEVEL_TILT_DEG: a body-fixed camera, a hover wobble) swings the footprint's edges
+        (`survey.tilt_margin_px`, at any altitude); and how far the vehicle may hold from its
+        pose (the hover tolerance, sideways and in height: about as many pixels as it is metres
+        times the survey's pixels per metre, each)."""
         from .perception.frames import lens_margin_px
+        from .survey import tilt_margin_px
 
-        tilt = math.ceil(max(camera.fx, camera.fy) * math.tan(math.radians(LEVEL_TILT_DEG)))
-        hold = math.ceil(2 * HOVER_TOLERANCE_M * px_per_cell / cell_size_m)
-        return SURVEY_BORDER_PX + lens_margin_px(camera) + tilt + hold
+        tilt = tilt_margin_px(camera, math.radians(LEVEL_TILT_DEG))
+        base = SURVEY_BORDER_PX + lens_margin_px(camera) + math.ceil(2 * HOVER_TOLERANCE_M * px_per_cell / cell_size_m)
+        return base + tilt[0], base + tilt[1]
 
     def _perceive(self):
         # The robots on the network name the ids the camera may see; a marker read as any
@@ -554,7 +556,7 @@ class Mission:
         limit = math.radians(LEVEL_TILT_DEG)
         while time.monotonic() < deadline:
             roll, pitch, _ = self.flight.attitude_rad()
-            if max(abs(roll), abs(pitch)) <= limit:
+            if math.hypot(roll, pitch) <= limit:
                 return
             time.sleep(0.02)
 
@@ -792,7 +794,7 @@ class Mission:
 
     def _still_at(self, pose) -> bool:
         roll, pitch, _ = self.flight.attitude_rad()
-        return max(abs(roll), abs(pitch)) <= math.radians(LEVEL_TILT_DEG) and self.flight.settled_at(*pose)
+        return math.hypot(roll, pitch) <= math.radians(LEVEL_TILT_DEG) and self.flight.settled_at(*pose)
 
     def _last_looks(self) -> None:
         """The images that end execution: those still being perceived, then the arrival stop the
@@ -857,7 +859,7 @@ class Mission:
             return None
         c = self.info.cell_size_m
         ppc = min(self._camera.fx, self._camera.fy) * c / max(pose[2], 1e-6)
-        return region_for(cells, self._camera, pose, c, self.landmarks, self._border(self._camera, ppc, c),
+        return region_for(cells, self._camera, pose, c, self.landmarks, max(self._border(self._camera, ppc, c)),
                           (self.info.width, self.info.height))
 
     def _monitor_seen(self, wait: bool = False) -> list[int]:

@@ -24,6 +24,38 @@ class CameraLike(Protocol):
     fy: float
 
 
+def tilt_margin_px(model: CameraLike, tilt_rad: float) -> tuple[int, int]:
+    """Pixels (x, y) by which a tilt of up to `tilt_rad` from the vertical (about any horizontal
+    axis) may swing the floor a level camera would show out of the image at any edge.
+
+    Not fx * tan(tilt): a ray leaving at angle a from the axis moves by f * (tan(a + tilt) -
+    tan(a)), twice as far at a 45-degree edge as at the centre, and a roll also spreads or
+    squeezes the image across (a corner moves both ways). The 450 survey's 1 degree, counted
+    at the centre (35 px), left the wall's column of cells outside an edge image tilted away
+    from it: a robot there went unseen and the mission flew a closer look for it."""
+    import numpy as np
+
+    cx = getattr(model, "cx", (model.width - 1) / 2)
+    cy = getattr(model, "cy", (model.height - 1) / 2)
+    n = 64
+    xs, ys = np.linspace(0, model.width - 1, n), np.linspace(0, model.height - 1, n)
+    edge = np.concatenate([np.column_stack([np.zeros(n), ys]), np.column_stack([np.full(n, model.width - 1.0), ys]),
+                           np.column_stack([xs, np.zeros(n)]), np.column_stack([xs, np.full(n, model.height - 1.0)])])
+    rays = np.column_stack([(edge[:, 0] - cx) / model.fx, (edge[:, 1] - cy) / model.fy, np.ones(len(edge))])
+    out = [0.0, 0.0]
+    for phi in np.linspace(0.0, 2 * math.pi, 48, endpoint=False):
+        # Rodrigues' rotation by tilt_rad about the horizontal axis (cos phi, sin phi, 0).
+        k = np.array([[0.0, 0.0, math.sin(phi)], [0.0, 0.0, -math.cos(phi)], [-math.sin(phi), math.cos(phi), 0.0]])
+        rot = np.eye(3) + math.sin(tilt_rad) * k + (1 - math.cos(tilt_rad)) * (k @ k)
+        moved = rays @ rot.T
+        u = moved[:, 0] / moved[:, 2] * model.fx + cx - edge[:, 0]
+        v = moved[:, 1] / moved[:, 2] * model.fy + cy - edge[:, 1]
+        # Outwards only: the left edge's points moving left, the top's up, and so on.
+        out[0] = max(out[0], float(np.max(np.concatenate([-u[:n], u[n:2 * n]]))))
+        out[1] = max(out[1], float(np.max(np.concatenate([-v[2 * n:3 * n], v[3 * n:]]))))
+    return math.ceil(out[0]), math.ceil(out[1])
+
+
 class SurveyPose(NamedTuple):
     north_m: float
     east_m: float
@@ -46,18 +78,21 @@ def _centres(extent_m: float, usable_m: float, n: int) -> list[float]:
 
 
 def survey_poses(width: int, height: int, cell_size_m: float, model: CameraLike, min_px_per_cell: float = 20.0,
-                 max_alt_m: float = 120.0, min_alt_m: float = 3.0, border_px: int = 8) -> list[SurveyPose]:
+                 max_alt_m: float = 120.0, min_alt_m: float = 3.0,
+                 border_px: int | tuple[int, int] = 8) -> list[SurveyPose]:
     """Lawn-mower ordered hover poses (west to east, then back, moving south) covering a
-    width x height grid; one pose when one image can hold the whole grid."""
+    width x height grid; one pose when one image can hold the whole grid. `border_px`: pixels
+    at each edge the survey does not count on, one number or (left and right, top and bottom)."""
     if width < 1 or height < 1:
         raise MissionError(f"survey: grid size {width}x{height} is not positive")
     if not cell_size_m > 0:
         raise MissionError(f"survey: cell size must be positive, got {cell_size_m}")
     if not 0 < min_alt_m <= max_alt_m:
         raise MissionError(f"survey: need 0 < min_alt_m <= max_alt_m, got {min_alt_m} and {max_alt_m}")
-    usable_w, usable_h = model.width - 2 * border_px, model.height - 2 * border_px
+    bx, by = (border_px, border_px) if isinstance(border_px, int) else border_px
+    usable_w, usable_h = model.width - 2 * bx, model.height - 2 * by
     if usable_w < 1 or usable_h < 1 or min_px_per_cell <= 0:
-        raise MissionError(f"survey: a {model.width}x{model.height} image with a {border_px} px border "
+        raise MissionError(f"survey: a {model.width}x{model.height} image with a {bx} x {by} px border "
                            f"cannot show cells at {min_px_per_cell} px")
     # A footprint must also span more than one cell plus the overlap, or tiles never advance.
     alt = min(max_alt_m, min(model.fx, model.fy) * cell_size_m / min_px_per_cell)
