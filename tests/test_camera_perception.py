@@ -224,6 +224,48 @@ def test_unknown_ids_are_refused_and_their_cells_reported_unidentified():
     assert world.free[cell[1], cell[0]]
 
 
+def test_markers_too_faint_to_read_alone_are_read_against_the_known_robots(monkeypatch):
+    """Real images whose in-place reads all fall under the clear-read margin (the margin raised so
+    far that none is clear): with the fleet's ids known, each marked cell is read as the one known
+    robot its modules fit, and with none known the markers stay unread, never guessed."""
+    from uav_agent.perception import markers
+
+    _, free = resolve_map("warehouse-small")
+    scene = make_scene(free, 6, seed=3)
+    frame = _frame(scene, (-9.0, 12.0, -13.0, 0.0))
+    monkeypatch.setattr(markers, "DECODE_MIN_CONFIDENCE", 5.0)
+    monkeypatch.setattr(markers, "_detect_near", lambda view, cells, perimeter: [])   # the in-place read alone
+    blind = perceive([frame], 24, 18, CELL)
+    assert blind.robots == {} and sorted(blind.unidentified) == sorted(scene.robots.values())
+    world = perceive([frame], 24, 18, CELL, known_ids=set(scene.robots))
+    assert world.robots == scene.robots and world.unidentified == []
+    assert sum("read faintly" in w for w in world.warnings) == len(scene.robots)
+
+
+def test_a_faint_read_names_only_a_robot_not_seen_elsewhere_that_no_other_known_robot_fits():
+    from uav_agent.perception.markers import FAINT_MIN_GAP, _code, read_faint
+
+    def weak(rid: int, modules: np.ndarray, level: float) -> np.ndarray:
+        m = 0.5 * _code(rid)[0]
+        m[modules] = level * np.sign(m[modules])
+        return m
+
+    a = 7
+    # The code nearest a's (the fewest modules differ), and those modules.
+    near = min((r for r in range(1000) if r != a), key=lambda r: int((_code(r)[0] != _code(a)[0]).sum()))
+    differ = _code(near)[0] != _code(a)[0]
+    faint = [((3, 4), [weak(a, differ, 0.03)])]
+    warnings: list[str] = []
+    assert read_faint(faint, {(3, 4)}, [a, 11, 12], [11], warnings) == {a: (3, 4)} and warnings
+    assert read_faint(faint, {(3, 4)}, [a, 11], [a], []) == {}                # a is seen elsewhere
+    assert read_faint(faint, {(5, 5)}, [a, 11], [], []) == {}                 # not a cell in doubt
+    assert read_faint(faint, {(3, 4)}, [11, 12], [], []) == {}                # a is no known robot
+    # The nearest code fits nearly as well where only the weak modules tell them apart: no guess.
+    assert read_faint(faint, {(3, 4)}, [a, near], [], []) == {}
+    # Modules that contradict the other code clearly enough tell them apart.
+    assert read_faint([((3, 4), [weak(a, differ, FAINT_MIN_GAP)])], {(3, 4)}, [a, near], [], []) == {a: (3, 4)}
+
+
 def test_no_frames_means_everything_unseen_and_blocked():
     world = perceive([], 5, 4, CELL)
     assert world.unseen == 20 and not world.free.any() and world.robots == {} and world.goals == []

@@ -21,7 +21,7 @@ from protocol.messages import CameraFrame
 
 from .frames import Frame, Pixels, pixels, reduction
 from .goals import goals_in
-from .markers import Sighting, read_markers, settle
+from .markers import Sighting, read_faint, read_markers, settle
 from .occupancy import MARKER_STD_RATIO, Cells, cells_in
 from .registration import Landmarks, Registration, register
 from .view import View, px_per_cell, sharpness
@@ -97,6 +97,7 @@ class Reading:
     markers: bool = False              # registered: its goals and markers count
     goals: set[Cell] = field(default_factory=set)
     sightings: list[Sighting] = field(default_factory=list)
+    faint: list = field(default_factory=list)          # markers.read_markers' faint reads
     warnings: list[str] = field(default_factory=list)
 
 
@@ -118,6 +119,7 @@ class Fusion:
         self.marker_vote = np.zeros((height, width))   # weight of the views that see a marker's contrast there
         self.shelf_cells = landmarks.cells(cell_size_m, width, height) if landmarks is not None else set()
         self.sightings: list[Sighting] = []
+        self.faint: list = []
         self.goals: set[Cell] = set()
         self.warnings: list[str] = []
         self.reports: list[FrameReport] = []
@@ -159,7 +161,8 @@ class Fusion:
         # and at half a marker's contrast (blur dims a marker's white below the in-place test's).
         ys, xs = np.nonzero((cells.contrast > DETECT_CONTRAST) & trusted)
         near = {(int(x) + cells.x0, int(y) + cells.y0) for x, y in zip(xs, ys)} - self.shelf_cells
-        reading.sightings = [s for s in read_markers(view, candidates, grid, reading.warnings, near=near | candidates)
+        reading.sightings = [s for s in read_markers(view, candidates, grid, reading.warnings, near=near | candidates,
+                                                     faint=reading.faint)
                              if s.cell not in self.shelf_cells and inside(s.cell)]
         reading.markers = True
         return reading
@@ -182,6 +185,7 @@ class Fusion:
         self.marker_vote[sl] += w * (cells.marker_like & reading.trusted)
         self.warnings += reading.warnings
         self.sightings += reading.sightings
+        self.faint += reading.faint
 
     def model(self) -> WorldModel:
         """The world model of every frame added so far."""
@@ -202,6 +206,10 @@ class Fusion:
         marker_like = self.marker_vote > 0.5 * total
         marked = {(int(x), int(y)) for y, x in zip(*np.nonzero(marker_like))} - shelf_cells
         unidentified = sorted(marked - robot_cells - goals)
+        if unidentified and self.known_ids is not None:
+            robots.update(read_faint(self.faint, set(unidentified), sorted(self.known_ids), set(robots), warnings))
+            robot_cells = set(robots.values())
+            unidentified = sorted(marked - robot_cells - goals)
         for x, y in list(robot_cells) + list(goals) + unidentified:
             free[y, x] = seen[y, x] = True   # floor under a robot or a goal marker
             unsure_mask[y, x] = False

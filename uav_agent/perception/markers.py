@@ -34,6 +34,8 @@ PAD_MARKER_CELLS = 0.8 * 6 / 7  # a robot body of 0.8 cell holding its marker wi
 DECODE_MODULE_PX = 6           # resampling of a marker module for the in-place read
 DECODE_MIN_CONFIDENCE = 0.04   # of the black-white contrast: the weakest module's margin
 DETECTOR_MAX_CONTRADICTION = 0.25  # measured: true reads >= -0.18, misreads <= -0.30
+FAINT_MIN_SUPPORT = -0.2       # a faint read names a robot not seen elsewhere if no module contradicts it more ...
+FAINT_MIN_GAP = 0.25           # ... and it fits that robot this much better than any other such robot
 MIN_MARKER_CONTRAST = 0.3      # (white - black) / white of a readable marker
 WINDOW_CELLS = 1.0             # half the side of a detector window: the cell and half of each neighbour
 WINDOW_PAD_PX = 4              # and a few pixels more, for the pose's error and the detector's border margin
@@ -163,9 +165,11 @@ def _detect_near(view: View, cells: Collection[Cell], perimeter: float) -> list[
 
 
 def read_markers(view: View, candidates: set[Cell], grid: tuple[int, int], warnings: list[str],
-                 near: Collection[Cell] | None = None) -> list[Sighting]:
+                 near: Collection[Cell] | None = None, faint: list | None = None) -> list[Sighting]:
     """ArUco detection around the cells `near` (default the candidates), checked against, and
-    completed by, an in-place read of every marker-like cell (the candidates)."""
+    completed by, an in-place read of every marker-like cell (the candidates). A cell whose
+    modules show a marker but name no code clearly goes to `faint` as (cell, [module margins
+    of each grid that read a frame]) for `read_faint`."""
     perimeter = 4 * MARKER_SIZE_CELLS * view.ppc
     by_cell: dict[Cell, Sighting] = {}
     for quad, rid in _detect_near(view, candidates if near is None else near, perimeter):
@@ -174,7 +178,8 @@ def read_markers(view: View, candidates: set[Cell], grid: tuple[int, int], warni
             by_cell[s.cell] = s
     in_place_quality = perimeter * 0.8   # it trusts the pose, not the marker's own corners
     for cell in sorted(candidates | set(by_cell)):
-        margins = _module_margins(view, cell)
+        margins = full = _module_margins(view, cell)
+        pad = None
         if margins is None or _identify(margins)[1] < DECODE_MIN_CONFIDENCE:   # names no code clearly
             # The pad layout's smaller marker on a white body (sim_world.camera, goal_pads).
             pad = _module_margins(view, cell, PAD_MARKER_CELLS)
@@ -198,7 +203,39 @@ def read_markers(view: View, candidates: set[Cell], grid: tuple[int, int], warni
             rid, confidence = _identify(margins)
             if rid is not None and confidence >= DECODE_MIN_CONFIDENCE:
                 by_cell[cell] = Sighting(rid, cell, in_place_quality)
+            elif faint is not None:
+                faint.append((cell, [m for m in (full, pad) if m is not None]))
     return list(by_cell.values())
+
+
+def read_faint(faint: list, cells: Collection[Cell], known: Collection[int], seen: Collection[int],
+               warnings: list[str]) -> dict[int, Cell]:
+    """Markers whose modules no view read clearly, decoded against the codebook of the robots known
+    to exist (at 19 px per cell an image corner's lens and vignetting leave a white module just
+    under the clear-read margin). A cell names robot r, one not `seen` elsewhere, when some read
+    fits r with no module contradicting it by more than FAINT_MIN_SUPPORT and fits every other
+    known robot worse by FAINT_MIN_GAP; one robot per cell and one cell per robot."""
+    unseen = set(known) - set(seen)
+    if not unseen:
+        return {}
+    best: dict[Cell, tuple[float, int, float]] = {}    # cell -> (support, robot, next best)
+    for cell, reads in faint:
+        if cell not in cells:
+            continue
+        for margins in reads:
+            fits = sorted(((_support(margins, r), r) for r in known), reverse=True)
+            top, rid = fits[0]
+            runner = fits[1][0] if len(fits) > 1 else -1.0
+            if (rid in unseen and top >= FAINT_MIN_SUPPORT and top - runner >= FAINT_MIN_GAP
+                    and top > best.get(cell, (-9.0,))[0]):
+                best[cell] = (top, rid, runner)
+    found: dict[int, Cell] = {}
+    for cell, (top, rid, runner) in sorted(best.items(), key=lambda kv: -kv[1][0]):
+        if rid not in found:
+            found[rid] = cell
+            warnings.append(f"marker {rid} at {cell} read faintly against the {len(known)} known robots "
+                            f"(fit {top:+.2f}, next best {runner:+.2f})")
+    return found
 
 
 
