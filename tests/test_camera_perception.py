@@ -242,6 +242,21 @@ def test_markers_too_faint_to_read_alone_are_read_against_the_known_robots(monke
     assert sum("read faintly" in w for w in world.warnings) == len(scene.robots)
 
 
+def test_a_marker_too_dim_to_pass_for_one_is_still_read_against_the_known_robots(monkeypatch):
+    """Markers the marker-like test passes over (raised out of reach here), and the detector does
+    not read, are read in place as faint reads: the known robots are found, none misread."""
+    from uav_agent.perception import markers, occupancy
+
+    _, free = resolve_map("warehouse-small")
+    scene = make_scene(free, 6, seed=4)
+    frame = _frame(scene, (-9.0, 12.0, -13.0, 0.0))
+    monkeypatch.setattr(occupancy, "MARKER_STD_RATIO", 1e9)
+    monkeypatch.setattr(markers, "_detect_near", lambda view, cells, perimeter: [])
+    world = perceive([frame], 24, 18, CELL, known_ids=set(scene.robots))
+    assert world.robots == scene.robots
+    assert perceive([frame], 24, 18, CELL).robots == {}
+
+
 def test_a_faint_read_names_only_a_robot_not_seen_elsewhere_that_no_other_known_robot_fits():
     from uav_agent.perception.markers import FAINT_MIN_GAP, _code, read_faint
 

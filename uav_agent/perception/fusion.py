@@ -206,8 +206,9 @@ class Fusion:
         marker_like = self.marker_vote > 0.5 * total
         marked = {(int(x), int(y)) for y, x in zip(*np.nonzero(marker_like))} - shelf_cells
         unidentified = sorted(marked - robot_cells - goals)
-        if unidentified and self.known_ids is not None:
-            robots.update(read_faint(self.faint, set(unidentified), sorted(self.known_ids), set(robots), warnings))
+        if self.faint and self.known_ids is not None and len(robots) < len(self.known_ids):
+            doubt = {cell for cell, _ in self.faint} - robot_cells - goals - shelf_cells
+            robots.update(read_faint(self.faint, doubt, sorted(self.known_ids), set(robots), warnings))
             robot_cells = set(robots.values())
             unidentified = sorted(marked - robot_cells - goals)
         for x, y in list(robot_cells) + list(goals) + unidentified:

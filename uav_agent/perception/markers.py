@@ -169,7 +169,9 @@ def read_markers(view: View, candidates: set[Cell], grid: tuple[int, int], warni
     """ArUco detection around the cells `near` (default the candidates), checked against, and
     completed by, an in-place read of every marker-like cell (the candidates). A cell whose
     modules show a marker but name no code clearly goes to `faint` as (cell, [module margins
-    of each grid that read a frame]) for `read_faint`."""
+    of each grid that read a frame]) for `read_faint`; so does every cell `near` but not a
+    candidate that the detector did not read (a marker dimmed under the candidates' contrast
+    by the lighting, at an image's edge), however clearly its modules read."""
     perimeter = 4 * MARKER_SIZE_CELLS * view.ppc
     by_cell: dict[Cell, Sighting] = {}
     for quad, rid in _detect_near(view, candidates if near is None else near, perimeter):
@@ -177,7 +179,8 @@ def read_markers(view: View, candidates: set[Cell], grid: tuple[int, int], warni
         if s is not None:
             by_cell[s.cell] = s
     in_place_quality = perimeter * 0.8   # it trusts the pose, not the marker's own corners
-    for cell in sorted(candidates | set(by_cell)):
+    dim = set() if faint is None or near is None else set(near) - candidates - set(by_cell)
+    for cell in sorted(candidates | set(by_cell) | dim):
         margins = full = _module_margins(view, cell)
         pad = None
         if margins is None or _identify(margins)[1] < DECODE_MIN_CONFIDENCE:   # names no code clearly
@@ -201,7 +204,7 @@ def read_markers(view: View, candidates: set[Cell], grid: tuple[int, int], warni
             detected = None
         if detected is None:
             rid, confidence = _identify(margins)
-            if rid is not None and confidence >= DECODE_MIN_CONFIDENCE:
+            if rid is not None and confidence >= DECODE_MIN_CONFIDENCE and cell not in dim:
                 by_cell[cell] = Sighting(rid, cell, in_place_quality)
             elif faint is not None:
                 faint.append((cell, [m for m in (full, pad) if m is not None]))
