@@ -159,11 +159,16 @@ def test_harsh_images_never_give_a_robot_a_wrong_id_and_report_what_they_cannot_
     free = warehouse(8, 20)
     scene = make_scene(free, 60, seed=1)
     model = CameraModel(noise_std=12.0, blur_sigma=1.3, lighting=0.35)   # ~20 px per cell: too poor to read all
-    world = perceive(survey_frames(scene, model, png=False), free.shape[1], free.shape[0], CELL)
+    frames = survey_frames(scene, model, png=False)
+    world = perceive(frames, free.shape[1], free.shape[0], CELL)
     assert {r: c for r, c in world.robots.items() if scene.robots.get(r) != c} == {}
     assert set(world.robots.values()) | set(world.unidentified) == set(scene.robots.values())
     assert 10 <= len(world.robots) < 60 and world.unidentified
     assert np.array_equal(world.free, free) and world.goals == sorted(scene.goals)
+    # Read against the fleet's codebook, the faint markers are named, and none wrongly.
+    known = perceive(frames, free.shape[1], free.shape[0], CELL, known_ids=set(scene.robots))
+    assert {r: c for r, c in known.robots.items() if scene.robots.get(r) != c} == {}
+    assert len(known.robots) > len(world.robots) and len(known.unidentified) < len(world.unidentified)
 
 
 @pytest.mark.timeout(120)
