@@ -99,3 +99,35 @@ def test_while_a_robot_is_missing_lone_shelf_cells_get_a_closer_look():
     targets, _ = plan_round(model, {1, 2}, True, 1, 20.0, 1.0, CAMERA)
     assert targets == [(4, 4), (8, 3)]
     assert plan_round(model, {1}, True, 1, 20.0, 1.0, CAMERA) == ([], [])
+
+
+def test_a_closer_look_is_an_event_of_the_mission_naming_what_was_in_doubt():
+    """Mission._see with an in-memory fusion and vehicle: the closer look it flies goes into the
+    report's events (kind closer-look), naming the unread marker and the robot not yet seen."""
+    from sim_world.camera import camera_frame
+    from uav_agent.events import EventLog
+    from uav_agent.mission import Mission
+    from uav_agent.perception.fusion import WorldModel
+    from uav_agent.progress import Progress
+
+    free = np.ones((40, 40), bool)
+    doubt = WorldModel(free=free, robots={1: (3, 3)}, goals=[(5, 5), (6, 6)], seen=free, unseen=0,
+                       unidentified=[(20, 21)])
+    clear = WorldModel(free=free, robots={1: (3, 3), 2: (20, 21)}, goals=[(5, 5), (6, 6)], seen=free, unseen=0)
+    models = iter([doubt, clear])
+    toured = []
+    m = Mission.__new__(Mission)
+    m.events, m.tick, m.progress = EventLog(), 0, Progress(enabled=False)
+    m.transport = SimpleNamespace(put=lambda key, payload: None)
+    m.keys = SimpleNamespace(mission_event="e")
+    m._seq = 0
+    m.flight = SimpleNamespace(position_ned=lambda: (-20.0, 20.0, -30.0), goto=lambda *a: None)
+    m.info = SimpleNamespace(cell_size_m=1.0)
+    m._survey_alt, m._poses, m._hover_ned, m.landmarks = 30.0, [(0.0, 0.0, 30.0)], (-20.0, 20.0, 30.0), None
+    m._camera = camera_frame((0.0, 0.0, -30.0), CameraModel(width=1280, height=960, fx=640.0, fy=640.0), 0.0)
+    m._tour = lambda hovers, fusion: toured.append(hovers)
+    fusion = SimpleNamespace(known_ids={1, 2}, model=lambda: next(models))
+    assert m._see(fusion) is clear and len(toured) == 1
+    (e,) = m.events.as_dicts()
+    assert e["kind"] == "closer-look" and e["robots"] == [2]
+    assert "1 unreadable marker(s) at [(20, 21)]" in e["what"] and "round 1" in e["action"]

@@ -538,10 +538,14 @@ class Mission:
             if not targets:
                 break
             heights = sorted({round(alt, 1) for _, _, alt in hovers})
-            self.progress.phase("perceive", f"{len(targets)} cell(s) in doubt ({model.unseen} unseen, "
-                                            f"{len(model.unidentified)} unreadable markers, {len(model.unsure)} "
-                                            f"unsure, {len(model.robots)} robots / {len(model.goals)} goals): a "
-                                            f"closer look from {len(hovers)} hover(s) at {heights} m (round {attempt})")
+            # An event, not only a progress line: a closer look costs seconds, and the report says why.
+            missing = sorted(set(known or ()) - set(model.robots))
+            self._event("closer-look", missing,
+                        f"{len(targets)} cell(s) in doubt: {model.unseen} unseen, {len(model.unidentified)} unreadable "
+                        f"marker(s){f' at {model.unidentified[:5]}' if model.unidentified else ''}, {len(model.unsure)} "
+                        f"unsure{f' at {model.unsure[:5]}' if model.unsure else ''}, {len(model.robots)} robots / "
+                        f"{len(model.goals)} goals seen",
+                        f"{len(hovers)} hover(s) at {heights} m (round {attempt})")
             self._tour(hovers, fusion)
             model = fusion.model()
             self.flight.goto(*self._hover_ned)
