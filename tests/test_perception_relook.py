@@ -131,3 +131,23 @@ def test_a_closer_look_is_an_event_of_the_mission_naming_what_was_in_doubt():
     (e,) = m.events.as_dicts()
     assert e["kind"] == "closer-look" and e["robots"] == [2]
     assert "1 unreadable marker(s) at [(20, 21)]" in e["what"] and "round 1" in e["action"]
+
+
+def test_the_shutter_waits_for_an_attitude_sent_after_the_arrival():
+    """The attitude read with the arrival may be the cruise's (level): the shutter waits for a
+    later sample, which shows the braking, and for that tilt to decay."""
+    from uav_agent.mission import Mission
+
+    samples = iter([(0.0, 0.0, 0.0, 100), (0.0, 0.0, 0.0, 100), (0.35, 0.0, 0.0, 140), (0.05, 0.0, 0.0, 180),
+                    (0.001, 0.0, 0.0, 220)])
+    read = []
+
+    def sample():
+        s = next(samples)
+        read.append(s)
+        return s
+
+    m = Mission.__new__(Mission)
+    m.flight = SimpleNamespace(attitude_sample=sample)
+    m._hold_level()
+    assert read[-1][3] == 220

@@ -256,9 +256,15 @@ class Flight:
 
     def attitude_rad(self) -> tuple[float, float, float]:
         """(roll, pitch, yaw) in radians; 0 for an angle the autopilot has not sent."""
+        return self.attitude_sample()[:3]
+
+    def attitude_sample(self) -> tuple[float, float, float, int]:
+        """(roll, pitch, yaw) in radians and the autopilot's time of the sample (microseconds since
+        its boot; 0 if it sends none): a new time is a sample sent after the one read before."""
         _, telemetry = self._link()
         e = telemetry.attitude_euler()
-        return tuple(math.radians(v) if math.isfinite(v) else 0.0 for v in (e.roll_deg, e.pitch_deg, e.yaw_deg))
+        angles = tuple(math.radians(v) if math.isfinite(v) else 0.0 for v in (e.roll_deg, e.pitch_deg, e.yaw_deg))
+        return (*angles, int(e.timestamp_us))
 
     @property
     def battery_pct(self) -> float:

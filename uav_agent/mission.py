@@ -165,6 +165,7 @@ class Mission:
         self.confirmed: dict[int, str] = {}     # robot -> the plan under which an image after its last move showed it on its goal
         self._stops: list = []                  # arrival_tour.Stop: poses still to shoot for arrivals ...
         self._stop = None                       # ... and the one the vehicle flies to or holds at
+        self._arrived_at: int | None = None     # the attitude sample current when the vehicle was seen at it
         self._arrivals: dict[int, int] = {}     # robot -> the tick of its last move in the plan flown
         # The vehicle's speed from pose to pose in wall time, stopping and levelling included:
         # measured by the survey, then by each hop between arrival stops.
@@ -558,9 +559,12 @@ class Mission:
 
         deadline = time.monotonic() + LEVEL_WAIT_S
         limit = math.radians(LEVEL_TILT_DEG)
+        # The attitude read with the arrival may have been sent before it, while the vehicle cruised
+        # level; only a later one shows it braking (a survey image was shot leaning 20 degrees).
+        first = self.flight.attitude_sample()[3]
         while time.monotonic() < deadline:
-            roll, pitch, _ = self.flight.attitude_rad()
-            if math.hypot(roll, pitch) <= limit:
+            roll, pitch, _, stamp = self.flight.attitude_sample()
+            if (stamp != first or not stamp) and math.hypot(roll, pitch) <= limit:
                 return
             time.sleep(0.02)
 
@@ -797,8 +801,17 @@ class Mission:
             self._hop = (time.perf_counter(), math.dist((here[0], here[1]), stop.pose[:2]))
 
     def _still_at(self, pose) -> bool:
-        roll, pitch, _ = self.flight.attitude_rad()
-        return math.hypot(roll, pitch) <= math.radians(LEVEL_TILT_DEG) and self.flight.settled_at(*pose)
+        """Settled at `pose` and level, by an attitude sample sent after the arrival was seen (see
+        `_hold_level`)."""
+        if not self.flight.settled_at(*pose):
+            self._arrived_at = None
+            return False
+        roll, pitch, _, stamp = self.flight.attitude_sample()
+        if self._arrived_at is None:
+            self._arrived_at = stamp
+        if stamp and stamp == self._arrived_at:
+            return False
+        return math.hypot(roll, pitch) <= math.radians(LEVEL_TILT_DEG)
 
     def _last_looks(self) -> None:
         """The images that end execution: those still being perceived, then the arrival stop the
