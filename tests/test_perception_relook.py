@@ -151,3 +151,27 @@ def test_the_shutter_waits_for_an_attitude_sent_after_the_arrival():
     m.flight = SimpleNamespace(attitude_sample=sample)
     m._hold_level()
     assert read[-1][3] == 220
+
+
+def test_an_image_shot_leaning_is_taken_again_level_and_the_report_says_why():
+    """Mission._retake with an in-memory vehicle: the survey's image set aside for its lean
+    (Shots.missed) is taken again over its pose, and the report's events name why."""
+    from uav_agent.events import EventLog
+    from uav_agent.mission import Mission
+    from uav_agent.progress import Progress
+
+    flown, added = [], []
+    m = Mission.__new__(Mission)
+    m.events, m.tick, m.progress, m.uav = EventLog(), 0, Progress(enabled=False), {}
+    m.transport = SimpleNamespace(put=lambda key, payload: None)
+    m.keys = SimpleNamespace(mission_event="e")
+    m._seq = 0
+    m.flight = SimpleNamespace(goto=lambda *a: flown.append(a), attitude_sample=lambda: (0.0, 0.0, 0.0, 0))
+    m._hover_ned = (-20.0, 20.0, 30.0)
+    m._capture = lambda: "level frame"
+    shots = SimpleNamespace(missed=[(-10.0, 5.0, 30.0)], why_missed=["taken leaning 20.0 degrees"])
+    m._retake(shots, SimpleNamespace(add=added.append))
+    assert flown == [(-10.0, 5.0, 30.0), (-20.0, 20.0, 30.0)] and added == ["level frame"]
+    assert m.uav["retaken_images"] == 1
+    (e,) = m.events.as_dicts()
+    assert e["kind"] == "retake" and "taken leaning 20.0 degrees at (-10.0, 5.0, 30.0)" in e["what"]

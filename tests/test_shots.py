@@ -1,11 +1,12 @@
 """Images asked for on the move: replies taken in order, perceived off the caller's thread,
-images taken elsewhere set aside for a retake, a silent or garbled camera named.
+images taken elsewhere or leaning set aside for a retake, a silent or garbled camera named.
 
 The whole path over Zenoh with the world's camera and a flying vehicle is exercised by
 every mission test (tests/test_end_to_end.py); here the camera is a small queryable on
 the in-memory transport, so each case can be made to happen."""
 from __future__ import annotations
 
+import math
 import threading
 import time
 
@@ -14,14 +15,16 @@ import pytest
 from protocol.errors import MissionError
 from protocol.messages import CameraFrame, CameraRequest, decode, encode
 from protocol.transport import MemoryBus, MemoryTransport
-from uav_agent.shots import Shots, taken_at
+from uav_agent.shots import Shots, miss, taken_at
 
 KEY = "t/world/camera"
 
 
-def _frame(seq: int, north: float, east: float, alt: float, sigma: float = 0.0) -> CameraFrame:
+def _frame(seq: int, north: float, east: float, alt: float, sigma: float = 0.0, roll: float = 0.0,
+           pitch: float = 0.0) -> CameraFrame:
     return CameraFrame(width=4, height=3, fx=2.0, fy=2.0, cx=1.5, cy=1.0, north_m=north, east_m=east, down_m=-alt,
-                       yaw_rad=0.0, time_s=float(seq), png=b"x", seq=seq, pose_sigma_m=sigma)
+                       yaw_rad=0.0, time_s=float(seq), png=b"x", seq=seq, pose_sigma_m=sigma, roll_rad=roll,
+                       pitch_rad=pitch)
 
 
 class Camera:
@@ -29,6 +32,7 @@ class Camera:
 
     def __init__(self, transport: MemoryTransport, answer=True) -> None:
         self.pose = (0.0, 0.0, 10.0)
+        self.lean = (0.0, 0.0)   # roll, pitch
         self.seq = 0
         self.answer = answer
         self.gate: threading.Event | None = None
@@ -37,14 +41,14 @@ class Camera:
     def _on(self, q) -> None:
         decode(q.payload, CameraRequest)
         self.seq += 1
-        seq, pose = self.seq, self.pose   # the shutter opens as the request arrives
+        seq, pose, lean = self.seq, self.pose, self.lean   # the shutter opens as the request arrives
 
         def later():
             time.sleep(0.05)
             if self.gate is not None:
                 self.gate.wait()
             if self.answer is True:
-                q.reply(encode(_frame(seq, *pose)))
+                q.reply(encode(_frame(seq, *pose, roll=lean[0], pitch=lean[1])))
             elif self.answer == "garbage":
                 q.reply(b"\xff not a frame")
             else:
@@ -52,9 +56,9 @@ class Camera:
         threading.Thread(target=later, daemon=True).start()
 
 
-def _shots(transport, perceived, took, timeout_s=1.0):
+def _shots(transport, perceived, took, timeout_s=1.0, max_tilt_rad=None):
     return Shots(lambda: transport.request_start(KEY, encode(CameraRequest()), timeout_s), took.append,
-                 perceived.append, timeout_s)
+                 perceived.append, timeout_s, max_tilt_rad=max_tilt_rad)
 
 
 def test_images_arrive_in_order_and_are_perceived_while_the_caller_goes_on():
@@ -91,11 +95,35 @@ def test_an_image_taken_away_from_its_pose_is_set_aside_for_a_retake():
     assert len(took) == 2 and perceived == frames   # recorded, not perceived
 
 
+def test_an_image_shot_leaning_is_set_aside_for_a_retake_and_says_so():
+    """A survey image was once shot at 20 degrees of roll (an attitude read before the vehicle
+    braked): its own published attitude tells, and it is taken again holding level."""
+    transport = MemoryTransport(MemoryBus())
+    camera = Camera(transport)
+    perceived, took = [], []
+    shots = _shots(transport, perceived, took, max_tilt_rad=math.radians(1.5))
+    try:
+        camera.lean = (math.radians(0.5), math.radians(-0.6))   # a hover's wobble: used
+        shots.shoot((0.0, 0.0, 10.0))
+        camera.lean = (math.radians(20.0), 0.0)
+        shots.shoot((0.0, 0.0, 10.0))
+        frames = shots.drain()
+    finally:
+        shots.close()
+    assert [f.seq for f in frames] == [1] and shots.missed == [(0.0, 0.0, 10.0)]
+    assert shots.why_missed == ["taken leaning 20.0 degrees"]
+    assert len(took) == 2 and perceived == frames
+
+
 def test_taken_at_allows_the_hover_tolerance_and_the_estimates_stated_error():
     assert taken_at(_frame(1, 0.9, 0.0, 10.0), (0.0, 0.0, 10.0))
     assert not taken_at(_frame(1, 1.2, 0.0, 10.0), (0.0, 0.0, 10.0))
     assert taken_at(_frame(1, 1.2, 0.0, 10.0, sigma=0.2), (0.0, 0.0, 10.0))
     assert not taken_at(_frame(1, 0.0, 0.0, 12.0), (0.0, 0.0, 10.0))
+    assert miss(_frame(1, 0.0, 3.0, 10.0), (0.0, 0.0, 10.0)) == "taken 3.0 m from its pose"
+    leaning = _frame(1, 0.0, 0.0, 10.0, roll=math.radians(1.2), pitch=math.radians(1.2))
+    assert taken_at(leaning, (0.0, 0.0, 10.0))   # no tilt limit asked for
+    assert miss(leaning, (0.0, 0.0, 10.0), max_tilt_rad=math.radians(1.5)) == "taken leaning 1.7 degrees"
 
 
 @pytest.mark.parametrize("answer,match", [(False, "no answer from the world's camera within 0.5 s"),

@@ -123,6 +123,21 @@ class Flight:
                   *self._home)
         return self
 
+    def stream(self, hz: float) -> list[str]:
+        """Ask the autopilot for attitude, position and velocity `hz` times a second (MAVSDK's
+        set_rate_*, MAV_CMD_SET_MESSAGE_INTERVAL): the shutter waits for an attitude sample sent
+        after the vehicle was seen to arrive, so each stream's period is part of every stop.
+        Returns the streams the autopilot refused (it keeps its own rate for those)."""
+        _, telemetry = self._link()
+        refused = []
+        for name, call in (("attitude", telemetry.set_rate_attitude_euler), ("position", telemetry.set_rate_position),
+                           ("velocity", telemetry.set_rate_velocity_ned)):
+            try:
+                call(float(hz))
+            except Exception as exc:  # noqa: BLE001 - MAVSDK's TelemetryError: a rate is a wish, not a need
+                refused.append(f"{name}: {exc}")
+        return refused
+
     def close(self) -> None:
         """Release MAVSDK (sockets, threads). Idempotent; `connect()` again to reuse the Flight."""
         mavsdk, self._mavsdk = self._mavsdk, None

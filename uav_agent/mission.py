@@ -40,6 +40,11 @@ ABORT_LAND_TIMEOUT_S = 60.0
 OBSERVER_WAIT_S = 5.0      # for the recorders the UAV was told of (MissionConfig.observers); then it goes on
 LEVEL_TILT_DEG = 0.6       # a shutter (survey, fresh look, closer look) waits for the body, and its camera, this level ...
 LEVEL_WAIT_S = 3.0         # ... for at most this long: a vehicle that has just braked hangs at its tilt limit
+# An image whose own published attitude leans further is taken again: beyond the level the shutter
+# accepts by four sigmas of a realistic attitude estimate (0.2 degrees), and about the most the
+# survey's border absorbs (LEVEL_TILT_DEG's swing plus the hold tolerance's pixels).
+RETAKE_TILT_DEG = 1.5
+TELEMETRY_HZ = 50.0        # attitude, position and velocity asked of the autopilot (PX4's onboard link streams as fast)
 STARTUP_LONGEST = 4         # robots still coming up extend the start-up wait, to this many times it
 PLAN_RESEND_S = 2.0        # a plan not acknowledged within this is put again
 SURVEY_BORDER_PX = 8       # pixels at each image's edge the survey never counts on, beyond the lens, tilt and hold
@@ -227,7 +232,8 @@ class Mission:
                      self._took, whole or measure or fusion.measure, CAMERA_TIMEOUT_S,
                      fence=lambda: self.transport.request(self.keys.world_info, encode(WorldInfoRequest(seq=self._next())),
                                                           QUERY_TIMEOUT_S),
-                     merge=None if whole else fusion.merge, workers=PERCEPTION_WORKERS)
+                     merge=None if whole else fusion.merge, workers=PERCEPTION_WORKERS,
+                     max_tilt_rad=math.radians(RETAKE_TILT_DEG))
 
     def _tour(self, poses, fusion) -> None:
         """Fly over `poses` (north, east, alt), taking an image at each without waiting for it;
@@ -244,7 +250,12 @@ class Mission:
         self._retake(shots, fusion)
 
     def _retake(self, shots, fusion) -> None:
-        """Take again, holding still until each arrives, the images the vehicle flew away from."""
+        """Take again, holding still until each arrives, the images the vehicle flew away from
+        or shot leaning."""
+        if shots.missed:
+            self._event("retake", [], f"{len(shots.missed)} image(s) not used: " + "; ".join(
+                f"{why} at ({n:.1f}, {e:.1f}, {a:.1f})" for why, (n, e, a) in zip(shots.why_missed, shots.missed)),
+                "holding still over each pose for a new image")
         for north, east, alt in shots.missed:
             self.flight.goto(north, east, alt)
             self._hold_level()
@@ -297,6 +308,8 @@ class Mission:
             self._warm = threading.Thread(target=self._warm_up_planner, name="planner-warm-up", daemon=True)
             self._warm.start()
             self.flight.connect(timeout_s=self.cfg.startup_timeout_s)
+            for refused in self.flight.stream(TELEMETRY_HZ):
+                self.progress.phase("connect", f"the autopilot keeps its own rate for {refused}")
             self.watch = VehicleWatch(self.flight, self._vehicle_fault)
             self.pose_feed = PoseFeed(self.flight, lambda p: self.transport.put(self.keys.uav_pose, encode(p)),
                                       t0=self.events.t0)
@@ -558,15 +571,17 @@ class Mission:
         (20 degrees swings an image's footprint by a third of the altitude)."""
 
         deadline = time.monotonic() + LEVEL_WAIT_S
-        limit = math.radians(LEVEL_TILT_DEG)
-        # The attitude read with the arrival may have been sent before it, while the vehicle cruised
-        # level; only a later one shows it braking (a survey image was shot leaning 20 degrees).
-        first = self.flight.attitude_sample()[3]
-        while time.monotonic() < deadline:
-            roll, pitch, _, stamp = self.flight.attitude_sample()
-            if (stamp != first or not stamp) and math.hypot(roll, pitch) <= limit:
-                return
+        arrived = self.flight.attitude_sample()[3]
+        while time.monotonic() < deadline and not self._level_since(arrived):
             time.sleep(0.02)
+
+    def _level_since(self, arrived: int) -> bool:
+        """Level by an attitude sample sent after `arrived` (the time of the one current when the
+        vehicle was seen to arrive; 0 from an autopilot that times none). The one read with the
+        arrival may have been sent before it, while the vehicle cruised level at constant speed:
+        only a later one shows it braking (a survey image was shot leaning 20 degrees)."""
+        roll, pitch, _, stamp = self.flight.attitude_sample()
+        return (stamp != arrived or not stamp) and math.hypot(roll, pitch) <= math.radians(LEVEL_TILT_DEG)
 
     def _look(self, cells: list[Cell] | None = None, back: bool = True) -> dict[int, Cell]:
         """A fresh look from the survey poses, at the whole floor or only at the poses that
@@ -802,16 +817,13 @@ class Mission:
 
     def _still_at(self, pose) -> bool:
         """Settled at `pose` and level, by an attitude sample sent after the arrival was seen (see
-        `_hold_level`)."""
+        `_level_since`)."""
         if not self.flight.settled_at(*pose):
             self._arrived_at = None
             return False
-        roll, pitch, _, stamp = self.flight.attitude_sample()
         if self._arrived_at is None:
-            self._arrived_at = stamp
-        if stamp and stamp == self._arrived_at:
-            return False
-        return math.hypot(roll, pitch) <= math.radians(LEVEL_TILT_DEG)
+            self._arrived_at = self.flight.attitude_sample()[3]
+        return self._level_since(self._arrived_at)
 
     def _last_looks(self) -> None:
         """The images that end execution: those still being perceived, then the arrival stop the

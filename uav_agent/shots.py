@@ -19,7 +19,10 @@ perceives behind it (the bound keeps a slow world from piling up requests that
 would outlast their timeout). Against a
 world that orders its queries otherwise, an image whose published pose is not
 where it was asked for is not used: it is listed in `missed`, for the caller to
-take again, holding still.
+take again, holding still. So is one whose published attitude leans further than
+`max_tilt_rad`: the shutter waits for the vehicle to level, and an image shot
+leaning anyway (an attitude read before the vehicle braked once let one through
+at 20 degrees) does not show the floor the survey counted on it for.
 """
 from __future__ import annotations
 
@@ -43,10 +46,12 @@ class Shots:
     def __init__(self, start: Callable[[], PendingRequest], on_frame: Callable[[CameraFrame], None],
                  perceive: Callable[[CameraFrame], object] | None = None, timeout_s: float = 10.0,
                  fence: Callable[[], object] | None = None, ahead: int = 4,
-                 merge: Callable[[object], None] | None = None, workers: int = 1) -> None:
+                 merge: Callable[[object], None] | None = None, workers: int = 1,
+                 max_tilt_rad: float | None = None) -> None:
         """`perceive` each frame as it arrives; with `merge`, `perceive` only measures (on up to
         `workers` frames at once) and `merge` folds each result in, in the frames' order."""
         self._start, self._on_frame, self._perceive, self._fence = start, on_frame, perceive, fence
+        self._max_tilt_rad = max_tilt_rad
         self._merge = merge
         self._timeout_s, self._ahead = timeout_s, max(1, ahead)
         self._requests: queue.Queue[tuple[PendingRequest, Where | None] | None] = queue.Queue()
@@ -59,6 +64,7 @@ class Shots:
         self._error: str | None = None
         self.frames: list[CameraFrame] = []
         self.missed: list[Where] = []
+        self.why_missed: list[str] = []   # for each of `missed`
         self._threads = [threading.Thread(target=self._receive, name="shots-receive", daemon=True),
                          threading.Thread(target=self._digest, name="shots-perceive", daemon=True)]
         if self._pool is not None:
@@ -156,8 +162,10 @@ class Shots:
     def _take(self, frame: CameraFrame, where: Where | None) -> bool:
         """True if the frame went on to be measured and merged."""
         self._on_frame(frame)
-        if where is not None and not taken_at(frame, where):
+        why = None if where is None else miss(frame, where, max_tilt_rad=self._max_tilt_rad)
+        if why is not None:
             self.missed.append(where)
+            self.why_missed.append(why)
             return False
         self.frames.append(frame)
         if self._perceive is None:
@@ -171,9 +179,21 @@ class Shots:
         return False
 
 
-def taken_at(frame: CameraFrame, where: Where, tolerance_m: float = 1.0) -> bool:
+def taken_at(frame: CameraFrame, where: Where, tolerance_m: float = 1.0, max_tilt_rad: float | None = None) -> bool:
     """Whether the frame's published pose is at `where`, within the hover tolerance and three
-    sigmas of the pose estimate's stated error."""
+    sigmas of the pose estimate's stated error, and (if `max_tilt_rad` is given) its published
+    roll and pitch together lean no further than that."""
+    return miss(frame, where, tolerance_m, max_tilt_rad) is None
+
+
+def miss(frame: CameraFrame, where: Where, tolerance_m: float = 1.0, max_tilt_rad: float | None = None) -> str | None:
+    """Why the frame was not taken at `where` (see `taken_at`), or None if it was."""
     slack = tolerance_m + 3.0 * frame.pose_sigma_m
     north, east, alt = where
-    return math.hypot(frame.north_m - north, frame.east_m - east) <= slack and abs(-frame.down_m - alt) <= slack
+    off = max(math.hypot(frame.north_m - north, frame.east_m - east), abs(-frame.down_m - alt))
+    if off > slack:
+        return f"taken {off:.1f} m from its pose"
+    tilt = math.hypot(frame.roll_rad, frame.pitch_rad)
+    if max_tilt_rad is not None and tilt > max_tilt_rad:
+        return f"taken leaning {math.degrees(tilt):.1f} degrees"
+    return None

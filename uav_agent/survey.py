@@ -11,6 +11,7 @@ inside at least one image.
 """
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple, Protocol
 
@@ -33,23 +34,30 @@ def tilt_margin_px(model: CameraLike, tilt_rad: float) -> tuple[int, int]:
     squeezes the image across (a corner moves both ways). The 450 survey's 1 degree, counted
     at the centre (35 px), left the wall's column of cells outside an edge image tilted away
     from it: a robot there went unseen and the mission flew a closer look for it."""
-    import numpy as np
-
     cx = getattr(model, "cx", (model.width - 1) / 2)
     cy = getattr(model, "cy", (model.height - 1) / 2)
+    return _tilt_margin(int(model.width), int(model.height), float(model.fx), float(model.fy), float(cx), float(cy),
+                        float(tilt_rad))
+
+
+@functools.lru_cache(maxsize=32)   # every arrival stop's region asks again, for the same camera
+def _tilt_margin(width: int, height: int, fx: float, fy: float, cx: float, cy: float,
+                 tilt_rad: float) -> tuple[int, int]:
+    import numpy as np
+
     n = 64
-    xs, ys = np.linspace(0, model.width - 1, n), np.linspace(0, model.height - 1, n)
-    edge = np.concatenate([np.column_stack([np.zeros(n), ys]), np.column_stack([np.full(n, model.width - 1.0), ys]),
-                           np.column_stack([xs, np.zeros(n)]), np.column_stack([xs, np.full(n, model.height - 1.0)])])
-    rays = np.column_stack([(edge[:, 0] - cx) / model.fx, (edge[:, 1] - cy) / model.fy, np.ones(len(edge))])
+    xs, ys = np.linspace(0, width - 1, n), np.linspace(0, height - 1, n)
+    edge = np.concatenate([np.column_stack([np.zeros(n), ys]), np.column_stack([np.full(n, width - 1.0), ys]),
+                           np.column_stack([xs, np.zeros(n)]), np.column_stack([xs, np.full(n, height - 1.0)])])
+    rays = np.column_stack([(edge[:, 0] - cx) / fx, (edge[:, 1] - cy) / fy, np.ones(len(edge))])
     out = [0.0, 0.0]
     for phi in np.linspace(0.0, 2 * math.pi, 48, endpoint=False):
         # Rodrigues' rotation by tilt_rad about the horizontal axis (cos phi, sin phi, 0).
         k = np.array([[0.0, 0.0, math.sin(phi)], [0.0, 0.0, -math.cos(phi)], [-math.sin(phi), math.cos(phi), 0.0]])
         rot = np.eye(3) + math.sin(tilt_rad) * k + (1 - math.cos(tilt_rad)) * (k @ k)
         moved = rays @ rot.T
-        u = moved[:, 0] / moved[:, 2] * model.fx + cx - edge[:, 0]
-        v = moved[:, 1] / moved[:, 2] * model.fy + cy - edge[:, 1]
+        u = moved[:, 0] / moved[:, 2] * fx + cx - edge[:, 0]
+        v = moved[:, 1] / moved[:, 2] * fy + cy - edge[:, 1]
         # Outwards only: the left edge's points moving left, the top's up, and so on.
         out[0] = max(out[0], float(np.max(np.concatenate([-u[:n], u[n:2 * n]]))))
         out[1] = max(out[1], float(np.max(np.concatenate([-v[2 * n:3 * n], v[3 * n:]]))))
