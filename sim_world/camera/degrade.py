@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
-from statistics import NormalDist
 
 import cv2
 import numpy as np
@@ -55,15 +54,13 @@ def _gain(width: int, height: int, lighting: float, angle_deg: float, vignetting
 def _noise_bank(width: int, height: int, std: float) -> np.ndarray:
     """Gaussian noise of `std` grey levels, rounded to whole levels (int16), a little larger than
     a frame; each frame adds a window of it at a random offset (fresh noise per frame costs more
-    than the rest of rendering). Drawn through the inverse CDF at 2^16 levels (uniform 16-bit
-    draws looked up in a table): rint(N(0, std)) to 1.5e-5 in probability, for a quarter of the
-    CPU of 36 million normal draws, which the first image waits for."""
-    levels = 1 << 16
-    normal = NormalDist(0.0, std)
-    table = np.rint([normal.inv_cdf((i + 0.5) / levels) for i in range(levels)]).astype(np.int16)
-    draws = np.random.default_rng(0).integers(0, levels, size=(height + NOISE_PAD, width + NOISE_PAD, 3),
-                                              dtype=np.uint16)
-    noise = table[draws]
+    than the rest of rendering)."""
+    noise = np.random.default_rng(0).standard_normal((height + NOISE_PAD, width + NOISE_PAD, 3), dtype=np.float32)
+    # In place: the same values as `rint(noise * std)` without two more 12 MP float copies (the
+    # first image waits for this table: 0.68-1.05 -> 0.43-0.59 s CPU at 12 MP).
+    noise *= np.float32(std)
+    np.rint(noise, out=noise)
+    noise = noise.astype(np.int16)
     noise.flags.writeable = False
     return noise
 
