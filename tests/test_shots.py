@@ -15,7 +15,7 @@ import pytest
 from protocol.errors import MissionError
 from protocol.messages import CameraFrame, CameraRequest, decode, encode
 from protocol.transport import MemoryBus, MemoryTransport
-from uav_agent.shots import Shots, miss, taken_at
+from uav_agent.shots import Shots, miss
 
 KEY = "t/world/camera"
 
@@ -115,14 +115,14 @@ def test_an_image_shot_leaning_is_set_aside_for_a_retake_and_says_so():
     assert len(took) == 2 and perceived == frames
 
 
-def test_taken_at_allows_the_hover_tolerance_and_the_estimates_stated_error():
-    assert taken_at(_frame(1, 0.9, 0.0, 10.0), (0.0, 0.0, 10.0))
-    assert not taken_at(_frame(1, 1.2, 0.0, 10.0), (0.0, 0.0, 10.0))
-    assert taken_at(_frame(1, 1.2, 0.0, 10.0, sigma=0.2), (0.0, 0.0, 10.0))
-    assert not taken_at(_frame(1, 0.0, 0.0, 12.0), (0.0, 0.0, 10.0))
+def test_miss_allows_the_hover_tolerance_and_the_estimates_stated_error():
+    assert miss(_frame(1, 0.9, 0.0, 10.0), (0.0, 0.0, 10.0)) is None
+    assert miss(_frame(1, 1.2, 0.0, 10.0), (0.0, 0.0, 10.0)) is not None
+    assert miss(_frame(1, 1.2, 0.0, 10.0, sigma=0.2), (0.0, 0.0, 10.0)) is None
+    assert miss(_frame(1, 0.0, 0.0, 12.0), (0.0, 0.0, 10.0)) is not None
     assert miss(_frame(1, 0.0, 3.0, 10.0), (0.0, 0.0, 10.0)) == "taken 3.0 m from its pose"
     leaning = _frame(1, 0.0, 0.0, 10.0, roll=math.radians(1.2), pitch=math.radians(1.2))
-    assert taken_at(leaning, (0.0, 0.0, 10.0))   # no tilt limit asked for
+    assert miss(leaning, (0.0, 0.0, 10.0)) is None   # no tilt limit asked for
     assert miss(leaning, (0.0, 0.0, 10.0), max_tilt_rad=math.radians(1.5)) == "taken leaning 1.7 degrees"
 
 

@@ -179,15 +179,10 @@ class Shots:
         return False
 
 
-def taken_at(frame: CameraFrame, where: Where, tolerance_m: float = 1.0, max_tilt_rad: float | None = None) -> bool:
-    """Whether the frame's published pose is at `where`, within the hover tolerance and three
-    sigmas of the pose estimate's stated error, and (if `max_tilt_rad` is given) its published
-    roll and pitch together lean no further than that."""
-    return miss(frame, where, tolerance_m, max_tilt_rad) is None
-
-
 def miss(frame: CameraFrame, where: Where, tolerance_m: float = 1.0, max_tilt_rad: float | None = None) -> str | None:
-    """Why the frame was not taken at `where` (see `taken_at`), or None if it was."""
+    """None if the frame's published pose is at `where`, within the hover tolerance and three
+    sigmas of the pose estimate's stated error, and (if `max_tilt_rad` is given) its published
+    roll and pitch together lean no further than that; else why not."""
     slack = tolerance_m + 3.0 * frame.pose_sigma_m
     north, east, alt = where
     off = max(math.hypot(frame.north_m - north, frame.east_m - east), abs(-frame.down_m - alt))
