@@ -155,6 +155,28 @@ def test_mid_size_warehouse_survey_with_noise():
     assert_matches(perceive(frames, free.shape[1], free.shape[0], CELL), scene)
 
 
+def test_frames_measured_at_once_on_several_threads_read_as_one_at_a_time():
+    # The survey measures two frames at once, and each frame's goal pads are split beside its
+    # registration on a third thread: nothing may leak from one frame's reading into another's.
+    from concurrent.futures import ThreadPoolExecutor
+
+    from uav_agent.perception import Fusion
+
+    free = warehouse(8, 20)
+    scene = make_scene(free, 50, seed=6)
+    frames = survey_frames(scene, CameraModel(noise_std=6.0, lighting=0.25), min_px_per_cell=25)
+    h, w = free.shape
+    alone, together = Fusion(w, h, CELL), Fusion(w, h, CELL)
+    for f in frames:
+        alone.merge(alone.measure(f))
+    with ThreadPoolExecutor(3) as pool:
+        for reading in pool.map(together.measure, frames):
+            together.merge(reading)
+    a, b = alone.model(), together.model()
+    assert len(frames) > 3 and a.goals == sorted(scene.goals) and a.robots == scene.robots
+    assert np.array_equal(a.free, b.free) and (a.robots, a.goals, a.unsure) == (b.robots, b.goals, b.unsure)
+
+
 def test_harsh_images_never_give_a_robot_a_wrong_id_and_report_what_they_cannot_read():
     free = warehouse(8, 20)
     scene = make_scene(free, 60, seed=1)

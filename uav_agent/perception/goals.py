@@ -9,6 +9,7 @@ centred on the cell like the pad's, so it reads as the same goal.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -25,8 +26,19 @@ MAX_CENTRE_OFFSET = 0.3          # of a cell: a blob's centre lies near its cell
 BORDER_PX = 2
 
 
-def goals_in(view: View, grid: tuple[int, int]) -> set[Cell]:
-    hsv = cv2.cvtColor(view.image, cv2.COLOR_BGR2HSV)
+class Blobs(NamedTuple):
+    """Green blobs of one image, before the registration places them: connectedComponentsWithStats' output."""
+    count: int
+    labels: np.ndarray | None
+    stats: np.ndarray | None
+    centroids: np.ndarray | None
+    shape: tuple[int, int]
+
+
+def goal_blobs(image: np.ndarray, valid: np.ndarray | None) -> Blobs:
+    """The pad-coloured blobs of an undistorted BGR image (`valid`: its pixels from the sensor).
+    The image alone decides them, so they are found while the image is being registered."""
+    hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
     bright = _percentile(cv2.calcHist([hsv], [2], None, [256], [0, 256]).ravel(), 95)
     # Whole grey levels: v >= x is v >= ceil(x). One inRange pass instead of three compares.
     low = (GREEN_HUE[0], 0, math.ceil(DARK_FRACTION * bright))
@@ -35,26 +47,30 @@ def goals_in(view: View, grid: tuple[int, int]) -> set[Cell]:
     sat_hist = cv2.calcHist([hsv], [1], mask, [256], [0, 256]).ravel()
     n = int(sat_hist.sum())
     if n == 0:
-        return set()
+        return Blobs(0, None, None, None, image.shape[:2])
     # The split between grey-with-noise and a pad's saturation, from this image's own pixels.
     sat_thr = max(MIN_SATURATION, _otsu(sat_hist)) if n > 50 else MIN_SATURATION
     mask = cv2.inRange(hsv, (low[0], math.ceil(sat_thr), low[2]), (GREEN_HUE[1], 255, 255))
     mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    if view.valid is not None:
-        mask *= view.valid
-    count, labels, stats, centroids = _components(mask)
-    img_h, img_w = mask.shape
+    if valid is not None:
+        mask *= valid
+    return Blobs(*_components(mask), mask.shape)
+
+
+def goals_from(blobs: Blobs, view: View, grid: tuple[int, int]) -> set[Cell]:
+    """The goal cells `blobs` of `view`'s image show, placed by its registration."""
+    img_h, img_w = blobs.shape
     goals: set[Cell] = set()
-    for i in range(1, count):
-        x, y, bw, bh, area = stats[i]
+    for i in range(1, blobs.count):
+        x, y, bw, bh, area = blobs.stats[i]
         if x <= BORDER_PX or y <= BORDER_PX or x + bw >= img_w - BORDER_PX or y + bh >= img_h - BORDER_PX:
             continue  # cut by the image edge, so its centroid lies; a neighbouring frame sees it whole
         if area / view.ppc ** 2 > GOAL_AREA_CELLS[1]:
-            goals |= _split(labels[y:y + bh, x:x + bw] == i, x, y, view, grid)   # neighbouring pads touch
+            goals |= _split(blobs.labels[y:y + bh, x:x + bw] == i, x, y, view, grid)   # neighbouring pads touch
             continue
         if area / view.ppc ** 2 < GOAL_AREA_CELLS[0]:
             continue
-        u, v_ = to_floor(centroids[i], view.H_inv)[0]
+        u, v_ = to_floor(blobs.centroids[i], view.H_inv)[0]
         cell = (math.floor(u), math.floor(v_))
         if max(abs(u - cell[0] - 0.5), abs(v_ - cell[1] - 0.5)) > MAX_CENTRE_OFFSET:
             continue
