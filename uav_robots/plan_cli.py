@@ -182,7 +182,7 @@ def add_bench_parser(subparsers) -> argparse.ArgumentParser:
     from .bench import PAPER_SIZES
     p = subparsers.add_parser("bench", help="benchmarks: the paper's Table 2 and MovingAI instances",
                               description="Run the planning benchmarks; writes a markdown table and CSV files.")
-    sub = p.add_subparsers(dest="bench", metavar="{paper,movingai,command,secure,perception,ticks}", required=True)
+    sub = p.add_subparsers(dest="bench", metavar="{paper,movingai,command,secure,perception,ticks,mission}", required=True)
 
     def common(q: argparse.ArgumentParser, limit: float) -> None:
         q.add_argument("--time-limit", type=_positive_float, default=limit,
@@ -241,6 +241,10 @@ def add_bench_parser(subparsers) -> argparse.ArgumentParser:
     from .bench_ticks import add_parser as add_ticks
     add_ticks(sub)
     sub.choices["ticks"].set_defaults(func=cmd_bench)
+
+    from .bench_mission import add_parser as add_mission
+    add_mission(sub)
+    sub.choices["mission"].set_defaults(func=cmd_bench)
     return p
 
 
@@ -256,6 +260,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
         if args.bench == "ticks":
             from . import bench_ticks
             return bench_ticks.run(args)
+        if args.bench == "mission":
+            from . import bench_mission
+            return bench_mission.run(args)
         return bench.run_paper(args) if args.bench == "paper" else bench.run_movingai(args)
     except UavRobotsError as exc:
         return _fail(exc)
