@@ -394,8 +394,10 @@ def _run(args, launcher: "Launcher", name: str, free) -> int:
         report.setdefault("timings", {})["wall_total"] = round(time.perf_counter() - t0, 3)
         report_path.write_text(json.dumps(report, indent=1))
     samples = observer.close() if observer is not None else []
+    t_views = time.perf_counter()
     if kept and report_path.exists():
         write_views(launcher.out, samples, launcher.fleet, quiet=args.quiet or args.json)
+    views_s = time.perf_counter() - t_views
     if args.json:
         summary = report if report_path.exists() else {"completed": False, "outcome": "aborted",
                                                        "reason": f"the UAV exited with code {code}"}
@@ -405,6 +407,7 @@ def _run(args, launcher: "Launcher", name: str, free) -> int:
         # The UAV printed the mission's summary; the launcher adds what only it knows.
         print(f"  whole run: {report['timings']['wall_total']:.2f}s wall (process start-up and shut-down "
               f"included), {len(report['processes']['robots'])} robot process(es)"
+              + (f"; then {views_s:.2f}s writing the recording, video and report page" if views_s >= 0.01 else "")
               + ("" if kept else "; outputs were temporary: keep them with --out DIR"), flush=True)
     if code not in (0, 130):
         where = launcher.out if kept else launcher.logs
