@@ -120,6 +120,8 @@ def test_one_compiler_at_a_time(tmp_path, monkeypatch):
     compiler = warm.start()
     try:
         assert compiler is not None
+        # below the mission it shares the cores with, whether or not a plan will wait for it
+        assert os.getpriority(os.PRIO_PROCESS, compiler.pid) == min(19, os.getpriority(os.PRIO_PROCESS, 0) + warm.NICE)
         # the lock was taken before the child started, and the child holds it
         assert warm.busy()
         assert warm.start() is None

@@ -378,14 +378,7 @@ class Mission:
             # A cold cache is compiled by a process of its own (the launcher's, else one started
             # here): compiling on this thread would hold the GIL through the survey.
             if self._compiling:
-                import numpy as np
-
-                from .planning.interpreted import fits
-
-                # the floor's cells bound its free cells: the plan will not wait when it fits
-                floor = np.ones((self.info.height, self.info.width), dtype=bool)
-                n = self.cfg.robots
-                warm.start(self.cfg.planner, self.cfg.connectivity, background=n is not None and fits(floor, n, n))
+                warm.start(self.cfg.planner, self.cfg.connectivity)
             with warm.kernel_lock():
                 if not self._skip_warm.is_set():   # planned without them: loading now would only stall
                     warm_up(self.cfg.planner or DEFAULT_PLANNER, self.cfg.connectivity)

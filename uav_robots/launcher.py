@@ -132,16 +132,14 @@ class Launcher:
         """Whether the launcher's observer can join: a --secure fleet needs its listen-only identity."""
         return self.secure_dir is None or Path(self.configs.get("observer", "")).is_file()
 
-    def start(self, free) -> Child:
-        """Starts the UAV and the world on the grid `free` (`start_robots` the robots)."""
+    def start(self) -> Child:
+        """Starts the UAV and the world (`start_robots` the robots)."""
         from uav_agent.planning import warm
-        from uav_agent.planning.interpreted import fits
 
         a = self.args
         common = ["--fleet", self.fleet]
-        # First, so that the compile overlaps every other process's start-up; in the background
-        # when the UAV will not wait for it (a small instance is planned interpreted meanwhile).
-        self.compiler = warm.start(a.planner, a.connectivity, background=fits(free, a.robots, a.robots))
+        # First, so that the compile overlaps every other process's start-up.
+        self.compiler = warm.start(a.planner, a.connectivity)
         uav = self._spawn("uav", "uav_agent", [*common, *self.session_args("uav", hub=True), "--robots", str(a.robots),
                                   "--mavlink", f"udpin://127.0.0.1:{self.udp}", "--out", str(self.out),
                                   *(["--assign", a.assign] if a.assign else []),
@@ -372,7 +370,7 @@ def _run(args, launcher: "Launcher", name: str, free) -> int:
     observer = None
     view = open_view(args, free)
     try:
-        uav = launcher.start(free)
+        uav = launcher.start()
         observer = start_observer(launcher)
         if view is not None and observer is not None:
             view.follow(observer)
