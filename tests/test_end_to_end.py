@@ -73,6 +73,14 @@ def test_default_mission(tmp_path):
     assert reg["by_landmarks"] >= 1 and reg["reprojection_px_max"] < 2.5
     for name in ("overhead.png", "paths.png", "replay.gif"):
         assert (tmp_path / name).stat().st_size > 1000
+    # The video, drawn while the vehicle landed (uav_robots/video_ahead.py), has a frame per tick,
+    # and no draft is left beside it.
+    import cv2
+
+    video = cv2.VideoCapture(str(tmp_path / "replay.mp4"))
+    assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == report["ticks"] + 1
+    assert not list(tmp_path.glob(".replay-draft*"))
+    assert "writing the recording, video and report page" in res.stdout
     procs = report["processes"]
     assert len(procs["robots"]) == 8  # one OS process per robot
     assert _no_survivors([procs["uav"], procs["world"], *procs["robots"]]) == []
@@ -212,6 +220,7 @@ def test_paper_setting_450_with_50_robots(tmp_path):
 
     video = cv2.VideoCapture(str(tmp_path / "replay.mp4"))
     assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == report["ticks"] + 1
+    assert not list(tmp_path.glob(".replay-draft*"))
     assert (tmp_path / "mission.mcap").stat().st_size > 0
     print(f"450x450 / 50 robots wall time {wall:.1f} s, timings {report['timings']}")
 

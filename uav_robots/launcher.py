@@ -180,17 +180,18 @@ class Launcher:
                                           "--ids", ids, "--moves", "ahead",
                                           "--connectivity", str(a.connectivity), *mine], to_log=True)
 
-    def watch(self, uav: Child, timeout_s: float, flying=lambda: True) -> int:
+    def watch(self, uav: Child, timeout_s: float, flying=lambda: True, each=lambda: None) -> int:
         """Wait for the UAV: it owns the mission's outcome. Other processes dying is the UAV's to
         handle (a lost robot is replanned around); the launcher only says so. The world dying leaves
         the UAV blind, so it is told to stop, which lands its vehicle. The robots start once
-        `flying()` (or at the latest ROBOTS_AT_LATEST_S after the UAV)."""
+        `flying()` (or at the latest ROBOTS_AT_LATEST_S after the UAV); `each()` runs on every look."""
         deadline = time.monotonic() + timeout_s
         said: set[str] = set()
         while True:
             code = uav.proc.poll()
             if code is not None:
                 return code
+            each()
             if not self.robots_started and (flying() or time.monotonic() >= self.robots_due):
                 self.start_robots()
             for c in self.children:
@@ -329,8 +330,9 @@ def open_view(args, free):
     return view
 
 
-def write_views(out: Path, samples: list, fleet: str, quiet: bool) -> None:
-    """mission.mcap, replay.mp4 (from the recording, as `uav-robots replay` makes it) and report.html."""
+def write_views(out: Path, samples: list, fleet: str, quiet: bool, ahead=None) -> None:
+    """mission.mcap, replay.mp4 (from the recording, as `uav-robots replay` makes it; the one `ahead`
+    (a VideoAhead) drew while the vehicle landed, if it draws the same) and report.html."""
     from uav_agent.mission import load_report
 
     from . import recording, replay, report_html
@@ -341,7 +343,9 @@ def write_views(out: Path, samples: list, fleet: str, quiet: bool) -> None:
         rows = (report.get("truth") or {}).get("rows") or (report.get("plan") or {}).get("map", {}).get("rows")
         cell_m = float((report.get("truth") or {}).get("cell_size_m", 1.0))
         recording.write_mcap(out / recording.MCAP, samples, f"uavr/{fleet}", rows, cell_m)
-        replay.render(recording.read_mcap(out / recording.MCAP), out / replay.VIDEO)
+        final = recording.read_mcap(out / recording.MCAP)
+        if ahead is None or not ahead.take(final, out / replay.VIDEO):
+            replay.render(final, out / replay.VIDEO)
     except Exception as exc:  # noqa: BLE001 - the mission's own report is written; say what is missing
         print(f"uav-robots: could not write the recording or the video: {exc}", file=sys.stderr, flush=True)
         return
@@ -367,14 +371,18 @@ def _run(args, launcher: "Launcher", name: str, free) -> int:
               f"fleet {launcher.fleet}, zenoh {launcher.endpoint}"
               f"{' (mutual TLS, access control)' if launcher.secure_dir else ''}, mavlink udp:{launcher.udp}"
               + (f", ground station {args.gcs}" if args.gcs else ""), flush=True)
-    observer = None
+    observer = ahead = None
     view = open_view(args, free)
     try:
         uav = launcher.start()
         observer = start_observer(launcher)
+        if observer is not None:
+            from .video_ahead import VideoAhead
+            ahead = VideoAhead(observer, launcher.out, launcher.fleet, free)
         if view is not None and observer is not None:
             view.follow(observer)
-        code = launcher.watch(uav, args.timeout, observer.flying if observer is not None else lambda: True)
+        code = launcher.watch(uav, args.timeout, observer.flying if observer is not None else lambda: True,
+                              ahead.poll if ahead is not None else lambda: None)
     except KeyboardInterrupt:
         print("interrupted: stopping every process", file=sys.stderr, flush=True)
         code = 130
@@ -393,8 +401,12 @@ def _run(args, launcher: "Launcher", name: str, free) -> int:
         report_path.write_text(json.dumps(report, indent=1))
     samples = observer.close() if observer is not None else []
     t_views = time.perf_counter()
-    if kept and report_path.exists():
-        write_views(launcher.out, samples, launcher.fleet, quiet=args.quiet or args.json)
+    try:
+        if kept and report_path.exists():
+            write_views(launcher.out, samples, launcher.fleet, quiet=args.quiet or args.json, ahead=ahead)
+    finally:
+        if ahead is not None:
+            ahead.discard()     # what `write_views` did not take (a failed run keeps no half video)
     views_s = time.perf_counter() - t_views
     if args.json:
         summary = report if report_path.exists() else {"completed": False, "outcome": "aborted",
