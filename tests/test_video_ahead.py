@@ -9,8 +9,9 @@ import numpy as np
 from protocol.keys import Keys
 from protocol.messages import MissionStatus, encode
 from uav_robots.observer import Sample
-from uav_robots.recording import Recording
-from uav_robots.video_ahead import DRAFT_VIDEO, VideoAhead, draws_the_same
+from protocol.mapfile import format_rows
+from uav_robots.recording import drawn
+from uav_robots.video_ahead import DRAFT_VIDEO, VideoAhead
 
 FLEET = "f1"
 
@@ -28,16 +29,12 @@ class Samples:
         self.samples.append(Sample(time.time_ns(), Keys(FLEET).mission_status, encode(MissionStatus(phase=phase))))
 
 
-def recording(ticks: int) -> Recording:
-    free = np.ones((6, 8), bool)
-    free[2, 3] = False
-    return Recording(free, cells={1: {k: (k % 8, 0) for k in range(ticks + 1)}}, goals={1: (ticks % 8, 0)},
-                     paths={1: [(k % 8, 0) for k in range(ticks + 1)]}, starts={1: (0, 0)}, ticks=ticks)
+FREE = np.ones((6, 8), bool)
 
 
-def test_the_draft_starts_at_the_landing_phase_once_and_is_kept_only_if_it_draws_the_same(tmp_path: Path):
+def test_the_draft_starts_at_the_landing_phase_once_and_is_kept_only_if_nothing_drawn_came_after(tmp_path: Path):
     feed = Samples()
-    ahead = VideoAhead(feed, tmp_path, FLEET, np.ones((6, 8), bool))
+    ahead = VideoAhead(feed, tmp_path, FLEET, FREE)
     feed.samples.append(Sample(time.time_ns(), Keys(FLEET).mission_status, b"garbage"))
     for phase in ("survey", "executing", "verify"):
         feed.status(phase)
@@ -50,34 +47,35 @@ def test_the_draft_starts_at_the_landing_phase_once_and_is_kept_only_if_it_draws
     feed.status("land")
     ahead.poll()
     assert ahead._thread is first, "one draft per mission"
-    ahead._finish()
-    # Whatever the draft drew from these samples, the decision is the final recording's: a draft that
-    # does not draw it is thrown away (the caller renders again), one that does is moved into place.
-    ahead._draft = recording(5)
+    assert ahead._finish(), "a draft is drawn from what arrived up to the landing"
+    rows = format_rows(FREE)
+    # After the draft's samples: a status (not drawn) keeps it; a robot's state, or another map, does not.
+    feed.status("landed")
+    assert ahead.take(feed.samples, rows, tmp_path / "replay.mp4")
+    assert (tmp_path / "replay.mp4").stat().st_size > 0 and not (tmp_path / DRAFT_VIDEO).exists()
     (tmp_path / DRAFT_VIDEO).write_bytes(b"draft")
-    assert not ahead.take(recording(6), tmp_path / "replay.mp4")
-    assert not (tmp_path / DRAFT_VIDEO).exists() and not (tmp_path / "replay.mp4").exists()
+    other = FREE.copy()
+    other[1, 1] = False
+    assert not ahead.take(feed.samples, format_rows(other), tmp_path / "again.mp4")
+    assert not (tmp_path / DRAFT_VIDEO).exists() and not (tmp_path / "again.mp4").exists()
     (tmp_path / DRAFT_VIDEO).write_bytes(b"draft")
-    assert ahead.take(recording(5), tmp_path / "replay.mp4")
-    assert (tmp_path / "replay.mp4").read_bytes() == b"draft" and not (tmp_path / DRAFT_VIDEO).exists()
+    keys = Keys(FLEET)
+    feed.samples.append(Sample(time.time_ns(), keys.states_as([1, 2]), b"{}"))
+    assert not ahead.take(feed.samples, rows, tmp_path / "again.mp4")
+    assert not (tmp_path / DRAFT_VIDEO).exists() and not (tmp_path / "again.mp4").exists()
 
 
-def test_what_the_video_draws_decides_whether_two_recordings_are_the_same():
-    a, b = recording(5), recording(5)
-    assert draws_the_same(a, b)
-    b.events.append({"kind": "camera-deviation"})      # not drawn
-    assert draws_the_same(a, b)
-    b.free[0, 0] = False
-    assert not draws_the_same(a, b)
-    c = recording(5)
-    c.cells[1][3] = (7, 5)
-    assert not draws_the_same(a, c)
+def test_what_the_video_draws():
+    keys, prefix = Keys(FLEET), Keys(FLEET).prefix
+    assert drawn(prefix, keys.states_as([3])) and drawn(prefix, keys.tick) and drawn(prefix, keys.plan(4))
+    assert not drawn(prefix, keys.mission_status) and not drawn(prefix, keys.uav_pose)
+    assert not drawn(Keys("other").prefix, keys.tick), "another fleet's samples are not this recording's"
 
 
 def test_no_landing_means_no_draft_and_discard_leaves_nothing(tmp_path: Path):
     feed = Samples()
-    ahead = VideoAhead(feed, tmp_path, FLEET, np.ones((6, 8), bool))
+    ahead = VideoAhead(feed, tmp_path, FLEET, FREE)
     feed.status("executing")
     ahead.poll()
     ahead.discard()
-    assert not ahead.take(recording(3), tmp_path / "replay.mp4") and not list(tmp_path.iterdir())
+    assert not ahead.take(feed.samples, format_rows(FREE), tmp_path / "replay.mp4") and not list(tmp_path.iterdir())

@@ -332,7 +332,7 @@ def open_view(args, free):
 
 def write_views(out: Path, samples: list, fleet: str, quiet: bool, ahead=None) -> None:
     """mission.mcap, replay.mp4 (from the recording, as `uav-robots replay` makes it; the one `ahead`
-    (a VideoAhead) drew while the vehicle landed, if it draws the same) and report.html."""
+    (a VideoAhead) drew while the vehicle landed, if the recording draws the same) and report.html."""
     from uav_agent.mission import load_report
 
     from . import recording, replay, report_html
@@ -343,9 +343,8 @@ def write_views(out: Path, samples: list, fleet: str, quiet: bool, ahead=None) -
         rows = (report.get("truth") or {}).get("rows") or (report.get("plan") or {}).get("map", {}).get("rows")
         cell_m = float((report.get("truth") or {}).get("cell_size_m", 1.0))
         recording.write_mcap(out / recording.MCAP, samples, f"uavr/{fleet}", rows, cell_m)
-        final = recording.read_mcap(out / recording.MCAP)
-        if ahead is None or not ahead.take(final, out / replay.VIDEO):
-            replay.render(final, out / replay.VIDEO)
+        if ahead is None or not ahead.take(samples, rows, out / replay.VIDEO):
+            replay.render(recording.read_mcap(out / recording.MCAP), out / replay.VIDEO)
     except Exception as exc:  # noqa: BLE001 - the mission's own report is written; say what is missing
         print(f"uav-robots: could not write the recording or the video: {exc}", file=sys.stderr, flush=True)
         return

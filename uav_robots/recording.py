@@ -21,6 +21,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from protocol import messages
 from protocol.messages import CameraFrame, StateBatch, VehiclePose, decode, encode
 from protocol.schemas import SCHEMA_DIR
 
@@ -65,6 +66,17 @@ def _topic(prefix: str, key: str) -> tuple[str, str] | None:
     if tail.startswith("robot/"):
         tail = tail.rsplit("/", 1)[-1]
     return _TOPICS.get(tail)
+
+
+DRAWN_TOPICS = frozenset({"/fleet/state", "/fleet/plan", "/fleet/tick"})   # what replay.render draws, with /map
+
+
+def drawn(prefix: str, key: str) -> bool:
+    """Whether a sample on `key` is recorded as a message replay.render draws."""
+    if key.startswith(prefix + "/robots/") and key.endswith("/states"):
+        return True
+    topic = _topic(prefix, key)
+    return topic is not None and topic[0] in DRAWN_TOPICS
 
 
 def _grid(rows: list[str], cell_m: float, ns: int) -> dict[str, Any]:
@@ -157,6 +169,10 @@ def write_mcap(path: Path, samples: Iterable[Sample], fleet_prefix: str, rows: l
                 continue
             topic = _topic(fleet_prefix, s.key)
             if topic is not None:
+                try:
+                    decode(s.payload, getattr(messages, topic[1]))
+                except Exception:  # noqa: BLE001 - garbage or forged bytes on a fleet key: a recorder keeps what it can read
+                    continue
                 put(topic[0], topic[1], s.time_ns, s.payload)
         w.finish()
     return counts
@@ -192,7 +208,10 @@ def read_mcap(path: Path) -> Recording:
             if topic == "/uav/camera":
                 rec.images.append((message.log_time, base64.b64decode(json.loads(message.data)["data"])))
                 continue
-            body = json.loads(message.data.split(b"\0", 1)[0])
+            try:
+                body = json.loads(message.data.split(b"\0", 1)[0])
+            except ValueError:   # a recording written by another tool: what cannot be read is skipped
+                continue
             if topic == "/uav/pose":
                 p = body["pose"]["position"]
                 rec.poses.append((message.log_time, {"east_m": p["x"], "north_m": p["y"], "alt_m": p["z"]}))

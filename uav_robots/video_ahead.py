@@ -4,7 +4,8 @@ Everything a replay draws (the floor, each robot's cell tick by tick, its plan a
 once the UAV reports its landing phase, and encoding the 450 mission's 250 frames takes about 4 s,
 which the user waited for after the summary. So the launcher renders the video from the samples
 received by then while the vehicle descends and the processes stop, and keeps it only if the whole
-recording, read back at the end, draws the same; otherwise it renders again.
+recording draws the same (no sample the video draws came after the draft's, the same map);
+otherwise it renders again.
 """
 from __future__ import annotations
 
@@ -27,23 +28,19 @@ DRAFT_VIDEO = ".replay-draft.mp4"
 JOIN_TIMEOUT_S = 300.0      # a 1,000-robot mission's video on a loaded machine stays well inside
 
 
-def draws_the_same(a: recording.Recording, b: recording.Recording) -> bool:
-    """Whether `replay.render` draws the same video from `a` and `b`."""
-    return (a.ticks == b.ticks and a.cells == b.cells and a.goals == b.goals and a.paths == b.paths
-            and a.starts == b.starts and a.free.shape == b.free.shape and bool(np.array_equal(a.free, b.free)))
-
-
 class VideoAhead:
     """Watches `observer` for the landing phase (`poll`, cheap to call often), then renders a draft
-    video into `out` on a thread; `take` moves it into place if it draws the final recording."""
+    video into `out` on a thread; `take` moves it into place if it draws the whole recording."""
 
     def __init__(self, observer: Observer, out: Path, fleet: str, free: np.ndarray) -> None:
         self._observer, self._out, self._fleet = observer, out, fleet
         self._rows = format_rows(free)
-        self._key = Keys(fleet).mission_status
+        keys = Keys(fleet)
+        self._key, self._prefix = keys.mission_status, keys.prefix
         self._seen = 0
+        self._drawn_from = 0          # the samples the draft was rendered from: the first so many
         self._thread: threading.Thread | None = None
-        self._draft: recording.Recording | None = None
+        self._done = False
 
     def poll(self) -> None:
         if self._thread is not None:
@@ -58,8 +55,10 @@ class VideoAhead:
             except ProtocolError:
                 continue      # not ours to judge: the recording keeps it as it came
             if phase == START_PHASE:
-                self._thread = threading.Thread(target=self._render, args=(self._observer.since(0),),
-                                                name="video-ahead", daemon=True)
+                samples = self._observer.since(0)
+                self._drawn_from = len(samples)
+                self._thread = threading.Thread(target=self._render, args=(samples,), name="video-ahead",
+                                                daemon=True)
                 self._thread.start()
                 return
 
@@ -68,25 +67,27 @@ class VideoAhead:
         try:
             # the cell's size in metres is the map's metadata, which the video does not draw
             recording.write_mcap(mcap, samples, f"uavr/{self._fleet}", self._rows, 1.0)
-            draft = recording.read_mcap(mcap)
-            replay.render(draft, self._out / DRAFT_VIDEO)
-            self._draft = draft
+            replay.render(recording.read_mcap(mcap), self._out / DRAFT_VIDEO)
+            self._done = True
         except Exception:  # noqa: BLE001 - only a head start: the video is rendered again at the end
-            self._draft = None
+            self._done = False
         finally:
             mcap.unlink(missing_ok=True)
 
-    def _finish(self) -> recording.Recording | None:
+    def _finish(self) -> bool:
+        """Whether a draft was rendered (waiting for it to end)."""
         if self._thread is None:
-            return None
+            return False
         self._thread.join(JOIN_TIMEOUT_S)
-        return None if self._thread.is_alive() else self._draft
+        return not self._thread.is_alive() and self._done
 
-    def take(self, final: recording.Recording, path: Path) -> bool:
-        """True if the draft draws `final` and is now `path`; the draft is gone either way."""
-        draft = self._finish()
+    def take(self, samples: list, rows: list[str] | None, path: Path) -> bool:
+        """True if the draft draws the recording of `samples` (every sample, in arrival order) on the
+        map `rows`, and is now `path`; the draft is gone either way."""
+        fresh = self._finish() and rows == self._rows and not any(
+            recording.drawn(self._prefix, s.key) for s in samples[self._drawn_from:])
         video = self._out / DRAFT_VIDEO
-        if draft is not None and draws_the_same(draft, final):
+        if fresh:
             video.replace(path)
             return True
         video.unlink(missing_ok=True)
