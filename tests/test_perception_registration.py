@@ -378,3 +378,30 @@ def test_an_arrival_image_of_a_region_shows_its_goals_and_enough_landmarks_and_r
     spread = [(5, 5), (440, 440)]
     assert region_for(spread, calibration, pose, CELL, marks, margin, (450, 450)) is None
     assert region_for([], calibration, pose, CELL, marks, margin, (450, 450)) is None
+
+
+def test_robots_parked_on_their_goals_are_read_through_the_target_degradation():
+    # The verification's look sees robots on their goals: each marker inside its pad's green frame,
+    # which keeps the cell's contrast under the marker-like test. At the target degradation the
+    # 450 floor is surveyed from 47.6 m; read only by the detector, 3 of these 10 parked robots
+    # went unseen (26 of all 50), and the mission counted their arrivals as contradicted.
+    from sim_world.camera import PoseEstimator, VehicleView, capture_frame
+    from sim_world.world import DRONE_CAMERA
+    from uav_agent.mission import Mission
+    from uav_agent.survey import covering
+
+    model = CameraModel(**{**DRONE_CAMERA, **PRESETS["realistic"], **TARGET})
+    surveyed = bench_scene("warehouse-450", 50, model)
+    ids = sorted(surveyed.robots)
+    parked = Scene(surveyed.free, {r: surveyed.goals[i] for i, r in enumerate(ids)}, surveyed.goals,
+                   surveyed.landmarks, goal_pads=surveyed.goal_pads)
+    h, w = parked.free.shape
+    ppc = 37.8   # what the survey measures for this blur (the mission's report: survey_px_per_cell)
+    poses = survey_poses(w, h, CELL, model, min_px_per_cell=ppc, border_px=Mission._border(model, ppc, CELL))
+    first = {ids[i]: surveyed.goals[i] for i in range(10)}
+    estimator = PoseEstimator(model, 0)
+    frames = [capture_frame(parked, VehicleView(n, e, -alt, 0.0), model, CELL, estimator, 2.0 * k, k)
+              for k, (n, e, alt) in enumerate(covering(poses, list(first.values()), CELL))]
+    world = perceive(frames, w, h, CELL, known_ids=set(ids), landmarks=landmarks_of(parked))
+    assert {r: world.robots.get(r) for r in first} == first
+    assert set(world.robots) <= set(ids) and all(world.robots[r] == parked.robots[r] for r in world.robots)

@@ -175,3 +175,45 @@ def test_an_image_shot_leaning_is_taken_again_level_and_the_report_says_why():
     assert m.uav["retaken_images"] == 1
     (e,) = m.events.as_dicts()
     assert e["kind"] == "retake" and "taken leaning 20.0 degrees at (-10.0, 5.0, 30.0)" in e["what"]
+
+
+def test_a_robot_that_raised_done_but_was_seen_nowhere_gets_a_closer_look_at_its_goal_before_it_is_doubted():
+    """Mission._verify with an in-memory fleet, vehicle and fusion: the verification's look sees
+    robot 1 on its goal and robot 2 nowhere; a closer look over robot 2's goal (half the survey's
+    height) sees it there, so both are verified and the report names the closer look. A robot the
+    look sees somewhere else is not looked for again: its Done is contradicted."""
+    import threading
+
+    from sim_world.camera import camera_frame
+    from uav_agent.events import EventLog
+    from uav_agent.mission import Mission
+    from uav_agent.perception.fusion import WorldModel
+    from uav_agent.progress import Progress
+
+    free = np.ones((40, 40), bool)
+    goals = {1: (5, 5), 2: (20, 21), 3: (30, 30)}
+    toured = []
+    m = Mission.__new__(Mission)
+    m.events, m.tick, m.progress = EventLog(), 249, Progress(enabled=False)
+    m.transport = SimpleNamespace(put=lambda key, payload: None)
+    m.keys = SimpleNamespace(mission_event="e", mission_status="s")
+    m._seq = m.seq = 0
+    m.flight = SimpleNamespace(position_ned=lambda: (-20.0, 20.0, -30.0), goto=lambda *a: None)
+    m.info = SimpleNamespace(cell_size_m=1.0)
+    m._survey_alt, m._poses, m._hover_ned, m.landmarks = 30.0, [(0.0, 0.0, 30.0)], (-20.0, 20.0, 30.0), None
+    m._camera = camera_frame((0.0, 0.0, -30.0), CameraModel(width=1280, height=960, fx=640.0, fy=640.0), 0.0)
+    m.ids, m.goal_of, m.confirmed, m.verified, m._contradicted = [1, 2, 3], goals, {}, {}, set()
+    m.plan = SimpleNamespace(ids=[1, 2, 3], plan_id="p")
+    m.fleet = SimpleNamespace(cv=threading.Condition(), done={1: None, 2: None, 3: None})
+    m._done_for = lambda r, plan: True
+    m.clock = SimpleNamespace(lap=lambda name: None)
+    m._look = lambda cells, back=True: {1: goals[1], 3: (29, 30)}     # 2 seen nowhere, 3 off its goal
+    closer = WorldModel(free=free, robots={2: goals[2]}, goals=[goals[2]], seen=free, unseen=0)
+    m._fusion = lambda known=None: SimpleNamespace(known_ids=known, model=lambda: closer)
+    m._tour = lambda hovers, fusion: toured.append(hovers)
+    m._verify()
+    assert m.verified == {1: True, 2: True, 3: False}
+    (hovers,) = toured
+    assert hovers and all(alt == 15.0 for _, _, alt in hovers)
+    kinds = [(e["kind"], e["robots"]) for e in m.events.as_dicts()]
+    assert kinds == [("closer-look", [2]), ("done-contradicted", [3])]

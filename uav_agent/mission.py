@@ -1012,6 +1012,10 @@ class Mission:
         self.progress.phase("verify", f"{len(confirmed)} arrival(s) seen during execution; a look at "
                                       f"{len(cells)} more goal(s)")
         seen = self._look(cells, back=False) if cells else {}
+        nowhere = {r: tuple(goals[r]) for r in claimed if goals.get(r) is not None and r not in seen
+                   and r not in confirmed}
+        if nowhere:
+            seen.update(self._closer_at_goals(nowhere))
         seen.update((r, tuple(goals[r])) for r in confirmed)
         self.seen_at_end = seen
         for r in self.ids:
@@ -1026,6 +1030,22 @@ class Mission:
             elif r in plan.ids and r not in claimed and self.verified[r]:
                 self._event("done-missing", [r], "on its goal but raised no Done", "counted as arrived (seen)")
         self.clock.lap("verify")
+
+    def _closer_at_goals(self, goals: dict[int, Cell]) -> dict[int, Cell]:
+        """Robots that raised Done but that the verification's look saw nowhere: their goals once
+        more from half the height, as the survey looks closer at what it could not read (a robot
+        parked on its goal shows its marker inside the pad's green frame, which a blurred camera
+        reads less often than one on bare floor). The robots that look sees, where it sees them."""
+        from .perception.relook import detail_hovers
+
+        here = self.flight.position_ned()
+        hovers = detail_hovers(sorted(set(goals.values())), 1, self._survey_alt, self.info.cell_size_m, self._camera,
+                               self.landmarks, (here[0], here[1]), math.radians(LEVEL_TILT_DEG), len(self._poses))
+        self._event("closer-look", sorted(goals), "raised Done, seen nowhere by the verification's look",
+                    f"{len(hovers)} hover(s) at {sorted({round(a, 1) for _, _, a in hovers})} m over their goals")
+        fusion = self._fusion(set(self.ids))   # the whole codebook: a neighbour's marker is not taken for theirs
+        self._tour(hovers, fusion)
+        return {r: tuple(c) for r, c in fusion.model().robots.items() if r in goals}
 
     def _outcome(self) -> str:
         """completed: every robot seen on a goal; degraded: every working robot is, some were lost; else failed."""

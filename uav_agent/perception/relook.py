@@ -114,21 +114,32 @@ def plan_round(model, known: Collection[int] | None, for_map: bool, attempt: int
         return [], []
     unseen = {c for c in targets if not model.seen[c[1], c[0]]}
     detail = [c for c in targets if c not in unseen]
-    hovers: list[tuple[float, float, float]] = []
-    here = start_ne
-    anchors = np.concatenate(list(landmarks.by_id.values())) if landmarks is not None and landmarks.by_id else None
+    hovers = detail_hovers(detail, attempt, survey_alt_m, cell_size_m, camera, landmarks, start_ne, tilt_rad,
+                           survey_images) if detail else []
+    here = hovers[-1][:2] if hovers else start_ne
+    anchors = _anchors(landmarks)
     cap = max(MAX_HOVERS, survey_images)
-    if detail:
-        keep = landmarks.view_alt_m(camera.width / camera.fx) if landmarks is not None else 0.0
-        alt = min(survey_alt_m, max(MIN_ALT_M, keep, survey_alt_m / 2.0 ** attempt))
-        alt, points = closer_look(detail, cell_size_m, alt, survey_alt_m, camera, here, tilt_rad, cap, anchors)
-        hovers += [(n, e, alt) for n, e in points]
-        here = points[-1] if points else here
     if unseen:
         alt, points = closer_look(sorted(unseen), cell_size_m, survey_alt_m, survey_alt_m, camera, here, tilt_rad,
                                   cap, anchors)
         hovers += [(n, e, alt) for n, e in points]
     return targets, hovers
+
+
+def _anchors(landmarks) -> np.ndarray | None:
+    return np.concatenate(list(landmarks.by_id.values())) if landmarks is not None and landmarks.by_id else None
+
+
+def detail_hovers(cells: Collection[Cell], attempt: int, survey_alt_m: float, cell_size_m: float, camera,
+                  landmarks=None, start_ne: tuple[float, float] = (0.0, 0.0), tilt_rad: float = 0.0,
+                  survey_images: int = 0) -> list[tuple[float, float, float]]:
+    """Hovers (north, east, altitude) that see `cells` in more detail: round `attempt` halves the
+    survey's altitude for them, staying high enough to keep landmarks in view to register by."""
+    keep = landmarks.view_alt_m(camera.width / camera.fx) if landmarks is not None else 0.0
+    alt = min(survey_alt_m, max(MIN_ALT_M, keep, survey_alt_m / 2.0 ** attempt))
+    alt, points = closer_look(cells, cell_size_m, alt, survey_alt_m, camera, start_ne, tilt_rad,
+                              max(MAX_HOVERS, survey_images), _anchors(landmarks))
+    return [(n, e, alt) for n, e in points]
 
 
 def doubts(model, known: Collection[int] | None, for_map: bool = True) -> list[Cell]:
