@@ -207,7 +207,7 @@ def test_a_robot_that_raised_done_but_was_seen_nowhere_gets_a_closer_look_at_its
     m.fleet = SimpleNamespace(cv=threading.Condition(), done={1: None, 2: None, 3: None})
     m._done_for = lambda r, plan: True
     m.clock = SimpleNamespace(lap=lambda name: None)
-    m._look = lambda cells, back=True: {1: goals[1], 3: (29, 30)}     # 2 seen nowhere, 3 off its goal
+    m._look = lambda cells, back=True, expected=None: {1: goals[1], 3: (29, 30)}   # 2 seen nowhere, 3 off its goal
     closer = WorldModel(free=free, robots={2: goals[2]}, goals=[goals[2]], seen=free, unseen=0)
     m._fusion = lambda known=None: SimpleNamespace(known_ids=known, model=lambda: closer)
     m._tour = lambda hovers, fusion: toured.append(hovers)
@@ -217,3 +217,33 @@ def test_a_robot_that_raised_done_but_was_seen_nowhere_gets_a_closer_look_at_its
     assert hovers and all(alt == 15.0 for _, _, alt in hovers)
     kinds = [(e["kind"], e["robots"]) for e in m.events.as_dicts()]
     assert kinds == [("closer-look", [2]), ("done-contradicted", [3])]
+
+
+def test_a_look_for_some_robots_flies_no_closer_look_for_the_others():
+    """Mission._see with `expected`: the verification's look over the goals still unconfirmed
+    is for those robots; a robot confirmed elsewhere is not in its images, and taking it for
+    missing sent the vehicle over every lone obstacle of a random floor (three rounds, 24 s)."""
+    from sim_world.camera import camera_frame
+    from uav_agent.events import EventLog
+    from uav_agent.mission import Mission
+    from uav_agent.perception.fusion import WorldModel
+    from uav_agent.progress import Progress
+
+    free = np.ones((40, 40), bool)
+    free[10, 10] = free[30, 5] = False               # lone obstacles: a blurred marker could look like one
+    seen = WorldModel(free=free, robots={1: (3, 3)}, goals=[(3, 3)], seen=np.ones((40, 40), bool), unseen=0)
+    for expected, rounds in (({1}, 0), (None, 3)):
+        toured = []
+        m = Mission.__new__(Mission)
+        m.events, m.tick, m.progress = EventLog(), 0, Progress(enabled=False)
+        m.transport = SimpleNamespace(put=lambda key, payload: None)
+        m.keys = SimpleNamespace(mission_event="e")
+        m._seq = 0
+        m.flight = SimpleNamespace(position_ned=lambda: (-20.0, 20.0, -30.0), goto=lambda *a: None)
+        m.info = SimpleNamespace(cell_size_m=1.0)
+        m._survey_alt, m._poses, m._hover_ned, m.landmarks = 30.0, [(0.0, 0.0, 30.0)], (-20.0, 20.0, 30.0), None
+        m._camera = camera_frame((0.0, 0.0, -30.0), CameraModel(width=1280, height=960, fx=640.0, fy=640.0), 0.0)
+        m._tour = lambda hovers, fusion: toured.append(hovers)
+        fusion = SimpleNamespace(known_ids={1, 2}, model=lambda: seen)
+        assert m._see(fusion, for_map=False, expected=expected) is seen
+        assert len(toured) == rounds

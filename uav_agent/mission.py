@@ -527,15 +527,18 @@ class Mission:
         self.clock.lap("perceive")
         return model
 
-    def _see(self, fusion, for_map: bool = True):
+    def _see(self, fusion, for_map: bool = True, expected: set[int] | None = None):
         """The model of what `fusion` holds; what it leaves in doubt gets closer looks: markers
         whose id did not decode, unsure cells (before they are taken for obstacles), cells no image
         saw, and, when fewer goals than robots were seen, the robots (one may stand on a goal and
-        hide most of it). Every doubtful cell is planned for; the hovers per round are capped."""
+        hide most of it). Every doubtful cell is planned for; the hovers per round are capped.
+        `expected`: the robots whose absence is a doubt (default the fusion's known robots: a
+        verification's look over some goals does not miss the robots confirmed elsewhere, and
+        on a floor of lone obstacles each would cost a round of closer looks)."""
 
         from .perception.relook import ROUNDS, plan_round
 
-        known = fusion.known_ids
+        known = fusion.known_ids if expected is None else expected
         model = fusion.model()
         for attempt in range(1, ROUNDS + 1):
             here = self.flight.position_ned()
@@ -576,9 +579,12 @@ class Mission:
         roll, pitch, _, stamp = self.flight.attitude_sample()
         return (stamp != arrived or not stamp) and math.hypot(roll, pitch) <= math.radians(LEVEL_TILT_DEG)
 
-    def _look(self, cells: list[Cell] | None = None, back: bool = True) -> dict[int, Cell]:
+    def _look(self, cells: list[Cell] | None = None, back: bool = True,
+              expected: set[int] | None = None) -> dict[int, Cell]:
         """A fresh look from the survey poses, at the whole floor or only at the poses that
-        see `cells`, then `back` to the hover: robot id -> the cell the camera sees it on."""
+        see `cells`, then `back` to the hover: robot id -> the cell the camera sees it on.
+        `expected`: the robots the look is for (default every robot); only their absence calls
+        for closer looks."""
         from .arrival_tour import Stop, route
         from .survey import covering, nearer_end_first
 
@@ -593,7 +599,7 @@ class Mission:
         self._tour(poses, fusion)
         if back:
             self.flight.goto(*self._hover_ned)
-        model = self._see(fusion, for_map=False)
+        model = self._see(fusion, for_map=False, expected=expected)
         return {r: tuple(c) for r, c in model.robots.items()}
 
     def _plan(self, model):
@@ -1011,7 +1017,8 @@ class Mission:
         cells = [tuple(g) for r, g in goals.items() if g is not None and r not in confirmed]
         self.progress.phase("verify", f"{len(confirmed)} arrival(s) seen during execution; a look at "
                                       f"{len(cells)} more goal(s)")
-        seen = self._look(cells, back=False) if cells else {}
+        looked_for = {r for r, g in goals.items() if g is not None and r not in confirmed}
+        seen = self._look(cells, back=False, expected=looked_for) if cells else {}
         nowhere = {r: tuple(goals[r]) for r in claimed if goals.get(r) is not None and r not in seen
                    and r not in confirmed}
         if nowhere:
