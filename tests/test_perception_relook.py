@@ -101,14 +101,31 @@ def test_while_a_robot_is_missing_lone_shelf_cells_get_a_closer_look():
     assert plan_round(model, {1}, True, 1, 20.0, 1.0, CAMERA) == ([], [])
 
 
-def test_a_closer_look_is_an_event_of_the_mission_naming_what_was_in_doubt():
-    """Mission._see with an in-memory fusion and vehicle: the closer look it flies goes into the
-    report's events (kind closer-look), naming the unread marker and the robot not yet seen."""
+def looking_mission(toured: list, tick: int = 0):
+    """A Mission with an in-memory vehicle over a 40x40 floor surveyed from 30 m, whose image
+    tours are only recorded in `toured`: enough for its looking logic (_see, _verify)."""
     from sim_world.camera import camera_frame
     from uav_agent.events import EventLog
     from uav_agent.mission import Mission
-    from uav_agent.perception.fusion import WorldModel
     from uav_agent.progress import Progress
+
+    m = Mission.__new__(Mission)
+    m.events, m.tick, m.progress = EventLog(), tick, Progress(enabled=False)
+    m.transport = SimpleNamespace(put=lambda key, payload: None)
+    m.keys = SimpleNamespace(mission_event="e", mission_status="s")
+    m._seq = m.seq = 0
+    m.flight = SimpleNamespace(position_ned=lambda: (-20.0, 20.0, -30.0), goto=lambda *a: None)
+    m.info = SimpleNamespace(cell_size_m=1.0)
+    m._survey_alt, m._poses, m._hover_ned, m.landmarks = 30.0, [(0.0, 0.0, 30.0)], (-20.0, 20.0, 30.0), None
+    m._camera = camera_frame((0.0, 0.0, -30.0), CameraModel(width=1280, height=960, fx=640.0, fy=640.0), 0.0)
+    m._tour = lambda hovers, fusion: toured.append(hovers)
+    return m
+
+
+def test_a_closer_look_is_an_event_of_the_mission_naming_what_was_in_doubt():
+    """Mission._see with an in-memory fusion and vehicle: the closer look it flies goes into the
+    report's events (kind closer-look), naming the unread marker and the robot not yet seen."""
+    from uav_agent.perception.fusion import WorldModel
 
     free = np.ones((40, 40), bool)
     doubt = WorldModel(free=free, robots={1: (3, 3)}, goals=[(5, 5), (6, 6)], seen=free, unseen=0,
@@ -116,16 +133,7 @@ def test_a_closer_look_is_an_event_of_the_mission_naming_what_was_in_doubt():
     clear = WorldModel(free=free, robots={1: (3, 3), 2: (20, 21)}, goals=[(5, 5), (6, 6)], seen=free, unseen=0)
     models = iter([doubt, clear])
     toured = []
-    m = Mission.__new__(Mission)
-    m.events, m.tick, m.progress = EventLog(), 0, Progress(enabled=False)
-    m.transport = SimpleNamespace(put=lambda key, payload: None)
-    m.keys = SimpleNamespace(mission_event="e")
-    m._seq = 0
-    m.flight = SimpleNamespace(position_ned=lambda: (-20.0, 20.0, -30.0), goto=lambda *a: None)
-    m.info = SimpleNamespace(cell_size_m=1.0)
-    m._survey_alt, m._poses, m._hover_ned, m.landmarks = 30.0, [(0.0, 0.0, 30.0)], (-20.0, 20.0, 30.0), None
-    m._camera = camera_frame((0.0, 0.0, -30.0), CameraModel(width=1280, height=960, fx=640.0, fy=640.0), 0.0)
-    m._tour = lambda hovers, fusion: toured.append(hovers)
+    m = looking_mission(toured)
     fusion = SimpleNamespace(known_ids={1, 2}, model=lambda: next(models))
     assert m._see(fusion) is clear and len(toured) == 1
     (e,) = m.events.as_dicts()
@@ -184,24 +192,12 @@ def test_a_robot_that_raised_done_but_was_seen_nowhere_gets_a_closer_look_at_its
     look sees somewhere else is not looked for again: its Done is contradicted."""
     import threading
 
-    from sim_world.camera import camera_frame
-    from uav_agent.events import EventLog
-    from uav_agent.mission import Mission
     from uav_agent.perception.fusion import WorldModel
-    from uav_agent.progress import Progress
 
     free = np.ones((40, 40), bool)
     goals = {1: (5, 5), 2: (20, 21), 3: (30, 30)}
     toured = []
-    m = Mission.__new__(Mission)
-    m.events, m.tick, m.progress = EventLog(), 249, Progress(enabled=False)
-    m.transport = SimpleNamespace(put=lambda key, payload: None)
-    m.keys = SimpleNamespace(mission_event="e", mission_status="s")
-    m._seq = m.seq = 0
-    m.flight = SimpleNamespace(position_ned=lambda: (-20.0, 20.0, -30.0), goto=lambda *a: None)
-    m.info = SimpleNamespace(cell_size_m=1.0)
-    m._survey_alt, m._poses, m._hover_ned, m.landmarks = 30.0, [(0.0, 0.0, 30.0)], (-20.0, 20.0, 30.0), None
-    m._camera = camera_frame((0.0, 0.0, -30.0), CameraModel(width=1280, height=960, fx=640.0, fy=640.0), 0.0)
+    m = looking_mission(toured, tick=249)
     m.ids, m.goal_of, m.confirmed, m.verified, m._contradicted = [1, 2, 3], goals, {}, {}, set()
     m.plan = SimpleNamespace(ids=[1, 2, 3], plan_id="p")
     m.fleet = SimpleNamespace(cv=threading.Condition(), done={1: None, 2: None, 3: None})
@@ -210,7 +206,6 @@ def test_a_robot_that_raised_done_but_was_seen_nowhere_gets_a_closer_look_at_its
     m._look = lambda cells, back=True, expected=None: {1: goals[1], 3: (29, 30)}   # 2 seen nowhere, 3 off its goal
     closer = WorldModel(free=free, robots={2: goals[2]}, goals=[goals[2]], seen=free, unseen=0)
     m._fusion = lambda known=None: SimpleNamespace(known_ids=known, model=lambda: closer)
-    m._tour = lambda hovers, fusion: toured.append(hovers)
     m._verify()
     assert m.verified == {1: True, 2: True, 3: False}
     (hovers,) = toured
@@ -223,27 +218,14 @@ def test_a_look_for_some_robots_flies_no_closer_look_for_the_others():
     """Mission._see with `expected`: the verification's look over the goals still unconfirmed
     is for those robots; a robot confirmed elsewhere is not in its images, and taking it for
     missing sent the vehicle over every lone obstacle of a random floor (three rounds, 24 s)."""
-    from sim_world.camera import camera_frame
-    from uav_agent.events import EventLog
-    from uav_agent.mission import Mission
     from uav_agent.perception.fusion import WorldModel
-    from uav_agent.progress import Progress
 
     free = np.ones((40, 40), bool)
     free[10, 10] = free[30, 5] = False               # lone obstacles: a blurred marker could look like one
     seen = WorldModel(free=free, robots={1: (3, 3)}, goals=[(3, 3)], seen=np.ones((40, 40), bool), unseen=0)
     for expected, rounds in (({1}, 0), (None, 3)):
         toured = []
-        m = Mission.__new__(Mission)
-        m.events, m.tick, m.progress = EventLog(), 0, Progress(enabled=False)
-        m.transport = SimpleNamespace(put=lambda key, payload: None)
-        m.keys = SimpleNamespace(mission_event="e")
-        m._seq = 0
-        m.flight = SimpleNamespace(position_ned=lambda: (-20.0, 20.0, -30.0), goto=lambda *a: None)
-        m.info = SimpleNamespace(cell_size_m=1.0)
-        m._survey_alt, m._poses, m._hover_ned, m.landmarks = 30.0, [(0.0, 0.0, 30.0)], (-20.0, 20.0, 30.0), None
-        m._camera = camera_frame((0.0, 0.0, -30.0), CameraModel(width=1280, height=960, fx=640.0, fy=640.0), 0.0)
-        m._tour = lambda hovers, fusion: toured.append(hovers)
+        m = looking_mission(toured)
         fusion = SimpleNamespace(known_ids={1, 2}, model=lambda: seen)
         assert m._see(fusion, for_map=False, expected=expected) is seen
         assert len(toured) == rounds
