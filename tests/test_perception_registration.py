@@ -308,7 +308,9 @@ def test_a_blurred_landmark_a_bit_or_two_off_is_still_read():
     OpenCV's default 60 % of the family's correction, this closer look found one of the two
     landmarks in view, and a lone landmark leaves yaw and scale loose by percents: its cells
     a few metres away landed a third of a cell off, shelf edges read as markers and the
-    random-64 bench map kept 10 wrong cells after every closer look."""
+    random-64 bench map kept 10 wrong cells after every closer look. With the full correction
+    but OpenCV's bit sampling (4 px a cell, 13 % margins) the second landmark was still read in
+    only 13 of 40 noise draws: every draw here must read both."""
     from sim_world.camera import PoseEstimator, VehicleView, capture_frame
     from uav_agent.perception.frames import pixels
     from uav_agent.perception.registration import register
@@ -316,11 +318,13 @@ def test_a_blurred_landmark_a_bit_or_two_off_is_still_read():
     model = CameraModel(**{**PRESETS["realistic"], **TARGET})
     scene = bench_scene("random:width=64,height=64,density=0.2", 20, model)
     marks = landmarks_of(scene)
-    frame = capture_frame(scene, VehicleView(-46.0, 50.0, -10.3, 0.0), model, CELL, PoseEstimator(model, 0), 80.0, 40)
-    px = pixels(frame)
-    reg = register(px.gray, px.frame.meta, marks, CELL)
-    assert reg.source == "landmarks" and reg.landmarks >= 2, reg.notes
-    assert math.degrees(abs(reg.pose.yaw_rad)) < 0.5
+    for seq in range(20, 40):   # seq seeds the image's noise: twenty draws
+        frame = capture_frame(scene, VehicleView(-46.0, 50.0, -10.3, 0.0), model, CELL, PoseEstimator(model, 0), 80.0,
+                              seq)
+        px = pixels(frame)
+        reg = register(px.gray, px.frame.meta, marks, CELL)
+        assert reg.source == "landmarks" and reg.landmarks >= 2, (seq, reg.notes)
+        assert math.degrees(abs(reg.pose.yaw_rad)) < 0.5, seq
 
 
 @pytest.mark.timeout(120)
