@@ -48,7 +48,8 @@ RULES: tuple[Rule, ...] = (
     # ------------------------------------------------------------ robots
     _r(1, S, "declares its token `alive/robot/<id>` while it runs, and again when restarted on the same id",
        ("test_liveliness_token_appears", "test_restart_gets_a_fresh_token"), "never declares its token"),
-    _r(2, S, "subscribes to its plan key, `tick` and `mission/end` before it declares its token: a plan put the "
+    _r(2, S, "subscribes to its plan key, `tick` (moving ahead: `world/judged/<ids>`) and `mission/end` before it "
+             "declares its token: a plan put the "
              "moment the token is seen is received", ("test_valid_plan_is_acknowledged",),
        "declares its token 2 s before it subscribes"),
     _r(3, K, "every `PlanAck`, `RobotState` and `Done` names the robot of the key it is put on",
@@ -61,7 +62,7 @@ RULES: tuple[Rule, ...] = (
     _r(7, P, "refuses a plan with a step that is not a move under the connectivity (a jump; a diagonal when the "
              "plan states 4 or states nothing)", (MALFORMED,), "does not check the steps"),
     _r(8, P, "refuses a plan whose last cell is not `goal`", (MALFORMED,), "does not check the goal"),
-    _r(9, P, "refuses a plan (without `start_tick`) that does not start where the robot stands: a stepping robot "
+    _r(9, P, "refuses a plan (`start_tick` 0 or none) that does not start where the robot stands: a stepping robot "
              "takes a new plan only as a replan from here", ("test_a_plan_not_starting_where_the_robot_stands_is_refused",),
        "does not check the first cell"),
     _r(10, P, "follows the plan's `connectivity` when stated: under 8 a diagonal step is a move, acknowledged and "
