@@ -23,6 +23,7 @@ import typing
 from dataclasses import dataclass, field
 from typing import Annotated, Any, Callable, ClassVar, Literal, NamedTuple, TypeVar, get_args, get_origin
 
+from . import grid
 from .errors import ProtocolError
 
 PROTOCOL_VERSION = 1
@@ -38,7 +39,7 @@ MAX_ROBOT_ID = 9_999_999         # seven decimal digits, also as Record.executed
 MAX_ROBOTS = 65_536              # entries of a MoveBatch, a MoveBatchResult, Record.executed
 MAX_TICKS = 100_000              # tick numbers and makespans
 MAX_PATH_CELLS = MAX_TICKS + 1   # a planned or executed path: one cell per tick from 0
-MAX_GRID_SIDE = 16_384           # cells per floor row or column; coordinates are 0 .. MAX_GRID_SIDE - 1
+MAX_GRID_SIDE = grid.MAX_GRID_SIDE  # cells per floor row or column (kept in grid.py: maps check it too)
 MAX_IMAGE_SIDE = 16_384          # camera image width and height, pixels
 MAX_TEXT_CHARS = 4_096           # any string
 MAX_REFUSED = 1_000_000          # entries of Record.refused

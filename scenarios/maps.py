@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from protocol.errors import MapError
-from protocol.messages import MAX_GRID_SIDE
+from protocol.grid import MAX_GRID_SIDE   # not protocol.messages: a plan needs no message classes
 from protocol.mapfile import Cell, read_map
 
 

@@ -106,6 +106,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         t0 = time.perf_counter()
         name, free, starts, goals, assign = _load_instance(args)
         t_load = time.perf_counter() - t0
+        from uav_agent.planning.registry import check_name
+        check_name(args.planner)     # a misspelt name too is a one-line error before numba's start-up
         # Imported after the input is checked: numba's start-up need not delay a one-line error.
         from uav_agent.planning.pipeline import plan_mission
         from uav_agent.planning.plan_io import write_plan
