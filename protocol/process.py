@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import ctypes
+import gc
 import signal
 import sys
 import threading
@@ -81,6 +82,7 @@ def command_main(build: Callable[[list[str]], argparse.ArgumentParser], argv: li
     """Parse `argv` with `build(argv)`'s parser and run its `func`; errors are one line and an exit code
     (1 a mission failed, 2 bad input, 130 interrupted)."""
     signal.signal(signal.SIGTERM, _unwind)
+    own_process = argv is None      # the command itself, not a caller in a process that goes on
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build(argv).parse_args(argv)
     try:
@@ -94,3 +96,11 @@ def command_main(build: Callable[[list[str]], argparse.ArgumentParser], argv: li
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr, flush=True)
         return 130
+    finally:
+        if own_process:
+            # The process exits next, and the interpreter's collections at exit would walk every
+            # object its libraries made (numba, OpenCV, Zenoh: some 140,000 in the UAV agent):
+            # 0.3-0.4 s after a mission's work is over, 0.05 s frozen. Nothing is left for them
+            # to do: sessions, children and files are closed by now, and weakref finalizers
+            # (temporary directories) run at exit all the same.
+            gc.freeze()

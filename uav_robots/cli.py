@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-import gc
 import importlib
 import sys
 
@@ -87,18 +86,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    own_process = argv is None      # the `uav-robots` command itself (console script or python -m), not a caller
-    argv = sys.argv[1:] if argv is None else list(argv)
-    rc = command_main(build_parser, argv)
-    if own_process and argv[:1] == ["plan"]:
-        # The process exits next. numba's start-up leaves some 125,000 objects that the
-        # interpreter's garbage collections at exit would walk again and again: 0.25-0.35 s of a
-        # 1.5 s `uav-robots plan` on the 2-core machine. Frozen, they are left to the exit. The
-        # plan file is closed and the output printed by now; the command keeps no finalizer work
-        # for the exit (no process, session or temporary file).
-        gc.freeze()
-    return rc
-
+    return command_main(build_parser, argv)
 
 if __name__ == "__main__":
     sys.exit(main())
