@@ -637,7 +637,8 @@ def _text_converter(n: int, pattern: Pattern | None, where: str) -> Callable[[An
     match = re.compile(pattern.regex).fullmatch if pattern is not None else None
 
     def conv(v: Any) -> Any:
-        _check_sized(v, str, n, where)
+        if type(v) is not str or len(v) > n:
+            _check_sized(v, str, n, where)   # raises, naming the problem
         if not (v.isascii() or _unicode(v)):
             raise ProtocolError(f"{where}: text holds a lone surrogate, not Unicode")
         if match is not None and match(v) is None:
@@ -661,6 +662,35 @@ def _tuple_converter(args: tuple[Any, ...], where: str, outer: int) -> Callable[
             raise _fail(where, expected, v)
         return conv
     parts = [_converter(a, f"{where}[{i}]", outer + 1) for i, a in enumerate(args)]
+    # The batches' entries (3 to 5 fields, thousands a tick at 1,000 robots) unpacked without a
+    # generator: a third of a StateBatch's decoding.
+    if n == 3:
+        c0, c1, c2 = parts
+
+        def conv3(v: Any) -> Any:
+            if type(v) is list and len(v) == 3:
+                a, b, c = v
+                return c0(a), c1(b), c2(c)
+            raise _fail(where, f"list of {n}", v)
+        return conv3
+    if n == 4:
+        c0, c1, c2, c3 = parts
+
+        def conv4(v: Any) -> Any:
+            if type(v) is list and len(v) == 4:
+                a, b, c, d = v
+                return c0(a), c1(b), c2(c), c3(d)
+            raise _fail(where, f"list of {n}", v)
+        return conv4
+    if n == 5:
+        c0, c1, c2, c3, c4 = parts
+
+        def conv5(v: Any) -> Any:
+            if type(v) is list and len(v) == 5:
+                a, b, c, d, e = v
+                return c0(a), c1(b), c2(c), c3(d), c4(e)
+            raise _fail(where, f"list of {n}", v)
+        return conv5
 
     def conv(v: Any) -> Any:
         if type(v) is list and len(v) == n:
