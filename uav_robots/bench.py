@@ -446,7 +446,7 @@ def run_paper(args: argparse.Namespace) -> int:
         "map to the validated plan, in-process in a warm worker (numba's first call paid before, last note).",
         "paper s: the planning time the paper reports in its Table 2 (A* for paper-astar, PRM for paper-prm and, as "
         "the paper's best, for ours): its machine, its own placements, its boundary; paper s / ours divides it by "
-        "our in-process total: an order of magnitude, not a ratio measured side by side.",
+        "our in-process total: only its order of magnitude means anything; not a ratio measured side by side.",
         "SoC/LB: sum of costs / sum of the assigned robots' shortest-path distances.",
         "Peak RSS: the worker process's peak during the instance (interpreter and libraries included).",
     ]
