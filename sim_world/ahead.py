@@ -15,11 +15,7 @@ from typing import Callable
 
 from protocol.messages import MoveAhead, MoveResult, MovesJudged, Tick
 
-from .world import Ask, MoveDesk
-
-# A move is kept at most this many ticks before the world has judged up to it: a robot moves
-# ahead by one tick, so anything farther is a mistake that must not grow the world's memory.
-MAX_TICKS_AHEAD = 4
+from .world import MAX_TICKS_AHEAD, Ask, MoveDesk
 
 Send = Callable[[str, MovesJudged], None]   # (the sender's ids label, the answer)
 
@@ -62,6 +58,7 @@ class AheadDesk:
                 return   # a resent Tick
             self.ticks[tick.k] = tick
             self.seen = max(self.seen, tick.k)
+            self.desk.seen = self.seen
             for old in [t for t in self.ticks if t < tick.k - 1]:
                 del self.ticks[old]
             for old in [t for t in self.pending if t < tick.k]:

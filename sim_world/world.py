@@ -134,6 +134,12 @@ class Ask(NamedTuple):
     to: Cell
 
 
+# A move may name a tick at most this many ahead of the world's (the last judged, or the UAV's last
+# Tick): a robot asks for the Tick it holds and puts its move one tick early, so anything farther is
+# a mistake or a forgery, and it must neither move the world's clock nor grow its memory.
+MAX_TICKS_AHEAD = 4
+
+
 class MoveDesk:
     """Collects one tick's move requests and has them judged together.
 
@@ -143,8 +149,11 @@ class MoveDesk:
     outside the lock: a reply may take the transport's time.
     """
 
-    def __init__(self, judge: MoveJudge, batch_timeout_s: float = MOVE_BATCH_TIMEOUT_S) -> None:
+    def __init__(self, judge: MoveJudge, batch_timeout_s: float = MOVE_BATCH_TIMEOUT_S,
+                 warn: Callable[[str], None] | None = None) -> None:
         self.judge = judge
+        self.warn = warn or (lambda _line: None)
+        self.seen = 0                                         # the UAV's last Tick, as the world heard it
         # Robots whose liveliness token is gone (killed, frozen past the lease) are not waited for:
         # a lost robot must not make every later tick wait out the batch timeout.
         self.gone: set[int] = set()
@@ -185,6 +194,11 @@ class MoveDesk:
                 now = self.tick if self.tick is not None else j.tick
                 sends.append((reply, j.slip(req.tick, req.robot, req.frm, req.to,
                                             f"tick {req.tick} is over (the world is at tick {now})")))
+        elif req.tick > max(j.tick, self.tick or 0, self.seen) + MAX_TICKS_AHEAD:
+            # Not recorded as a refusal of the mission: no tick of it was asked.
+            why = f"tick {req.tick} is too far ahead (the world is at tick {max(j.tick, self.seen)})"
+            self.warn(f"refused robot {req.robot}'s move: {why}")
+            sends.append((reply, MoveResult(req.robot, req.tick, False, j.positions[req.robot], why)))
         else:
             if self.tick is not None and req.tick > self.tick:
                 sends += self._resolve(f"no move request before tick {req.tick} began: stayed")
@@ -318,7 +332,7 @@ class World(Lifecycle):
         if self.transport is None:
             c = self.cfg
             self.transport = open_session("world", c.listen, c.connect, c.zenoh_config, self.stop, alone="either")
-        self.desk = MoveDesk(self.judge, cfg.move_batch_timeout_s)
+        self.desk = MoveDesk(self.judge, cfg.move_batch_timeout_s, self.warn)
         from .ahead import AheadDesk   # it builds on this module's MoveDesk
         self.ahead = AheadDesk(self.desk, self._put_judged)
         t, k = self.transport, self.keys

@@ -116,6 +116,20 @@ def test_a_later_tick_closes_the_pending_one(mem_world):
     assert any("before tick 2 began" in r for r in reasons)
 
 
+def test_a_move_for_a_tick_far_ahead_is_refused_and_leaves_the_clock(mem_world, capsys):
+    """One forged query for tick 100,000 used to be judged: the world's clock jumped there, every
+    real move after it was 'over', and the mission aborted with nothing logged."""
+    world, client = mem_world
+    far = result(ask(client, world, 0, 100_000, (0, 0), (0, 0)))
+    assert not far.accepted and "too far ahead" in far.reason and far.cell == (0, 0)
+    assert world.judge.tick == 0 and world.record().refused == []
+    assert "refused robot 0's move: tick 100000 is too far ahead" in capsys.readouterr().err
+    # Up to four ahead is still a move of the mission, judged as always (tick 1, then 5: the others stay).
+    ps = [ask(client, world, r, 1, c, c) for r, c in ((0, (0, 0)), (1, (1, 0)), (2, (5, 5)))]
+    assert all(result(p).accepted for p in ps) and world.judge.tick == 1
+    assert result(ask(client, world, 0, 5, (0, 0), (0, 1))).accepted and world.judge.tick == 5
+
+
 def test_garbage_gets_no_reply_and_changes_nothing(mem_world, capsys):
     world, client = mem_world
     k = world.keys
