@@ -185,6 +185,8 @@ def test_an_aborted_run_still_writes_its_report(tmp_path):
     assert report["uav"]["landed"] is True, "the abort landing must complete before the run ends"
     assert (tmp_path / "out" / "logs").is_dir()
     assert any("report and logs in" in line and str(tmp_path / "out") in line for line in run.lines)
+    # the UAV's own exit code: a failed mission (1), not a bad input (2) as it said before
+    assert any("did not complete (exit 1)" in line for line in run.lines), run.lines[-5:]
 
 
 @pytest.mark.slow

@@ -983,9 +983,14 @@ class Mission:
         lost = sorted(set(self.ids) - alive)
         t_look = time.perf_counter() - t
         t = time.perf_counter()
-        rep = replan(self.model_free, list(self.model.goals), working, self.blocked,
-                     planner=self.cfg.planner or DEFAULT_PLANNER, connectivity=self.cfg.connectivity,
-                     time_limit=self.cfg.time_limit_s, seed=self.cfg.seed)
+        try:
+            rep = replan(self.model_free, list(self.model.goals), working, self.blocked,
+                         planner=self.cfg.planner or DEFAULT_PLANNER, connectivity=self.cfg.connectivity,
+                         time_limit=self.cfg.time_limit_s, seed=self.cfg.seed)
+        except PlanningError as exc:
+            # The mission's input was fine; what happened to its fleet ends it: a failed mission
+            # (exit 1), not a bad input (exit 2), as the UAV alone used to say.
+            raise MissionError(f"no repair after tick {k}: {exc}") from None
         # A goal under a stopped robot that had reached it is served, not lost.
         self.unserved = [tuple(g) for g in rep.unserved
                          if not any(self.goal_of.get(r) == tuple(g) and c == tuple(g) for r, c in self.blocked.items())]
