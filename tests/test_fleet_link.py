@@ -10,15 +10,18 @@ def test_garbage_and_forgery_are_refused_state_kept():
     bus = MemoryBus()
     keys = Keys("t")
     link = FleetLink(MemoryTransport(bus), keys)
+    link.clock = 3          # the mission has put Tick(3)
     robot = MemoryTransport(bus)
     tok = robot.announce(keys.alive_robot(1))
     robot.put(keys.state(1), encode(RobotState(robot=1, tick=3, cell=(2, 2), status="stepping")))
     robot.put(keys.state(1), b"\x00garbage")
     robot.put(keys.state(1), b'{"type":"RobotState","v":7}')
     robot.put(keys.state(1), encode(RobotState(robot=2, tick=9, cell=(5, 5), status="stepping")))  # forged
+    # a state for a tick the mission has not reached: it used to pin the robot's cell for good
+    robot.put(keys.state(1), encode(RobotState(robot=1, tick=100_000, cell=(6, 6), status="stepping")))
     robot.put(keys.ack(1), encode(PlanAck(robot=1, plan_id="p", ok=True)))
     robot.put(keys.done(1), encode(Done(robot=1, tick=3, cell=(2, 2))))
-    assert link.rejected == 3
+    assert link.rejected == 4
     assert link.last_tick == {1: 3} and link.cells == {1: (2, 2)}
     assert link.acks[1].ok and 1 in link.done and link.alive == {1}
     tok.close()

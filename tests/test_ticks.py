@@ -25,6 +25,7 @@ PATHS = {r: [(x, r) for x in range(5)] for r in range(ROWS)}
 def test_a_state_batch_counts_only_for_the_robots_its_key_names():
     bus, keys = MemoryBus(), Keys("t")
     link = FleetLink(MemoryTransport(bus), keys)
+    link.clock = 2          # the mission has put Tick(2)
     pool = MemoryTransport(bus)
     try:
         batch = StateBatch(tick=2, states=[(0, (1, 0), "stepping", "p", ""), (1, (1, 1), "stepping", "p", ""),

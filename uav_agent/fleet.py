@@ -34,6 +34,10 @@ class FleetLink:
         # wakes the waiter only when it completes the tick or reports an error: waking it for each
         # of N states, to scan N robots, made a tick cost N^2.
         self._awaited: tuple[int, set[int]] | None = None
+        # The last tick awaited: a robot reports tick k after Tick(k), so a state for a tick beyond
+        # the next is not a robot's. Believed, one state for tick 100,000 pinned that robot's cell
+        # and counted it as reported for every tick after (a forged state, found by fuzzing).
+        self.clock = 0
         self._warn = Throttled("uav")
         self._handles = [
             transport.subscribe(keys.all_acks, self._on_ack),
@@ -71,9 +75,15 @@ class FleetLink:
                 self.acks[msg.robot] = msg
                 self.cv.notify_all()
 
+    def _from_the_future(self, key: str, tick: int) -> bool:
+        if tick <= self.clock + 1:
+            return False
+        self._reject(key, f"a state for tick {tick}, and the mission is at tick {self.clock}")
+        return True
+
     def _on_state(self, key: str, payload: bytes) -> None:
         msg = self._decode(key, payload, RobotState)
-        if msg is not None:
+        if msg is not None and not self._from_the_future(key, msg.tick):
             with self.cv:
                 self._take_state(msg.robot, msg.tick, msg.cell, msg.status, msg.error)
 
@@ -84,6 +94,8 @@ class FleetLink:
             msg = decode(payload, StateBatch)
         except (ProtocolError, UavRobotsError) as exc:
             self._reject(key, str(exc))
+            return
+        if self._from_the_future(key, msg.tick):
             return
         foreign = [s[0] for s in msg.states if s[0] not in ids]
         if foreign:
@@ -172,6 +184,7 @@ class FleetLink:
         """
         deadline = time.monotonic() + timeout
         with self.cv:
+            self.clock = max(self.clock, k)
             late = {r for r in robots if self.last_tick.get(r, -1) < k}
             self._awaited = (k, late)
             try:
