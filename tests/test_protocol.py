@@ -2,9 +2,11 @@
 import dataclasses
 import json
 import signal
+import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 from hypothesis import given, settings, strategies as st
@@ -19,6 +21,8 @@ from protocol.schemas import SCHEMA_DIR, schema_files, stale_files
 from protocol.transport import MemoryBus, MemoryTransport, ZenohTransport
 
 cells = st.tuples(st.integers(0, 10_000), st.integers(0, 10_000))
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 @given(robot=st.integers(0, 10**6), pid=st.text(max_size=20), path=st.lists(cells, min_size=1, max_size=50),
@@ -251,3 +255,17 @@ def test_a_command_leaves_its_heap_frozen_for_the_exit_and_a_caller_untouched(mo
     finally:
         gc.unfreeze()
         signal.signal(signal.SIGTERM, term)
+
+
+def test_warning_lines_are_throttled_printable_and_their_tail_said_at_exit():
+    """A flood of bad input is one line a second; what a stranger sent is shown escaped, on one line;
+    the lines held back after the last one shown are counted at the process's exit (they were lost)."""
+    code = ("from protocol.log import Throttled\n"
+            "w = Throttled('probe')\n"
+            "w('bad \\x1b[31mred\\x1b[0m\\nsecond line')\n"
+            "for i in range(99): w(f'bad {i}')\n")
+    run = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
+    lines = run.stderr.splitlines()
+    assert run.returncode == 0 and len(lines) == 2, run.stderr
+    assert lines[0] == r"warning: probe: bad \x1b[31mred\x1b[0m\nsecond line"
+    assert lines[1] == "warning: probe: 99 more held back (100 in all)"

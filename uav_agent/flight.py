@@ -27,28 +27,30 @@ from mavsdk.plugins.telemetry import LandedState, Telemetry
 
 from protocol.errors import MissionError
 from protocol.geo import check_home, geo_to_ned, ned_to_geo
+from protocol.log import Throttled
 
 DEFAULT_URL = "udpin://0.0.0.0:14540"
 POLL_S = 0.02
 SETTLED_M_S = 0.5  # a goto has arrived once the vehicle is this slow near its target
 
 _log = logging.getLogger("uav_agent.flight")
-_mavsdk_log = logging.getLogger("mavsdk")
 _log_installed = threading.Lock()
 _log_routed = False
 
 
 def _route_mavsdk_logs() -> None:
-    """Send MAVSDK's own log lines (printed to stdout by default) to Python logging, once."""
+    """MAVSDK's own warnings and errors as the UAV's throttled warning lines, once; its debug and
+    info lines not at all (it prints them to stdout by default). What it logs can quote anything
+    a stranger sends to the MAVLink port (500 PARAM_SETs were 500 lines, with the sender's bytes)."""
     global _log_routed
     with _log_installed:
         if _log_routed:
             return
-        levels = {LogLevel.DEBUG: logging.DEBUG, LogLevel.INFO: logging.INFO,
-                  LogLevel.WARN: logging.WARNING, LogLevel.ERROR: logging.ERROR}
+        warn = Throttled("uav: MAVSDK")
 
         def forward(level, message, file, line):
-            _mavsdk_log.log(levels.get(level, logging.INFO), "%s", message)
+            if level in (LogLevel.WARN, LogLevel.ERROR):
+                warn(message)
             return True  # suppress MAVSDK's default printing
 
         log_subscribe(forward)
