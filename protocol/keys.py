@@ -205,13 +205,20 @@ def parse_ids(text: str) -> list[int]:
 MAX_IDS_LABEL = 4096   # characters of a move key's robot ids: bounded before parsing
 
 
+def _ids_of_label(what: str, key: str, label: str) -> list[int]:
+    if len(label) > MAX_IDS_LABEL:
+        raise UavRobotsError(f"{what} key {key[:80]!r}...: its robot ids are {len(label)} characters, "
+                             f"more than {MAX_IDS_LABEL}")
+    if not label:
+        raise UavRobotsError(f"{what} key {key[:80]!r} does not name robot ids")
+    return parse_ids(label)
+
+
 def ids_of_states_key(keys: Keys, key: str) -> list[int]:
     """The robots a StateBatch's key names; UavRobotsError for a key that names no valid ids."""
     head, tail = f"{keys.prefix}/robots/", "/states"
     label = key[len(head):-len(tail)] if key.startswith(head) and key.endswith(tail) else ""
-    if not label or len(label) > MAX_IDS_LABEL:
-        raise UavRobotsError(f"state batch key {key[:80]!r} does not name robot ids")
-    return parse_ids(label)
+    return _ids_of_label("state batch", key, label)
 
 
 def ids_of_move_key(keys: Keys, key: str) -> list[int] | None:
@@ -219,16 +226,10 @@ def ids_of_move_key(keys: Keys, key: str) -> list[int] | None:
     Raises UavRobotsError for a key that names no valid ids."""
     if key == keys.move:
         return None
-    label = key[len(keys.move) + 1:] if key.startswith(keys.move + "/") else ""
-    if not label or len(label) > MAX_IDS_LABEL:
-        raise UavRobotsError(f"move key {key[:80]!r} does not name robot ids")
-    return parse_ids(label)
+    return _ids_of_label("move", key, key[len(keys.move) + 1:] if key.startswith(keys.move + "/") else "")
 
 
 def ids_of_ahead_key(keys: Keys, key: str) -> list[int]:
     """The robots a MoveAhead's key names; UavRobotsError for a key that names no valid ids."""
     head = f"{keys.prefix}/world/ahead/"
-    label = key[len(head):] if key.startswith(head) else ""
-    if not label or len(label) > MAX_IDS_LABEL:
-        raise UavRobotsError(f"move-ahead key {key[:80]!r} does not name robot ids")
-    return parse_ids(label)
+    return _ids_of_label("move-ahead", key, key[len(head):] if key.startswith(head) else "")

@@ -455,6 +455,8 @@ def decode(data: bytes | bytearray | memoryview, expected: type[M]) -> M:
     if type(body) is not dict:
         raise ProtocolError(f"{name}: payload is not a JSON object")
     if body.get("type") != name:
+        if "type" not in body:
+            raise ProtocolError(f"expected a {name} message, got an object without a 'type'")
         raise ProtocolError(f"expected a {name} message, got type {str(body.get('type'))[:40]!r}")
     v = body.get("v")
     if type(v) is not int or v != PROTOCOL_VERSION:

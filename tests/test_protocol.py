@@ -269,3 +269,15 @@ def test_warning_lines_are_throttled_printable_and_their_tail_said_at_exit():
     assert run.returncode == 0 and len(lines) == 2, run.stderr
     assert lines[0] == r"warning: probe: bad \x1b[31mred\x1b[0m\nsecond line"
     assert lines[1] == "warning: probe: 99 more held back (100 in all)"
+
+
+def test_refusals_name_the_real_problem():
+    """An object without a type used to be 'got type None'; an over-long ids key 'names no robot ids'."""
+    from protocol.errors import UavRobotsError
+    from protocol.keys import ids_of_move_key
+
+    with pytest.raises(ProtocolError, match="an object without a 'type'"):
+        decode(b"{}", Tick)
+    keys = Keys("t")
+    with pytest.raises(UavRobotsError, match="its robot ids are 4800 characters, more than 4096"):
+        ids_of_move_key(keys, keys.move + "/" + "1," * 2400)
