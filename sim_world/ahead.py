@@ -56,6 +56,10 @@ class AheadDesk:
         with self.lock:
             if tick.k in self.ticks or tick.k <= self.desk.judge.tick:
                 return   # a resent Tick
+            if self.seen and tick.k > self.seen + 1:
+                # The UAV's ticks come one by one: a jump is lost Ticks, or a Tick that is not the UAV's.
+                self.desk.warn(f"Tick {tick.k} follows Tick {self.seen}: moves put ahead for the ticks between "
+                               "are dropped")
             self.ticks[tick.k] = tick
             self.seen = max(self.seen, tick.k)
             self.desk.seen = self.seen

@@ -113,7 +113,7 @@ def _memory_world(tmp_path, n=2):
     return world, probe, keys, got
 
 
-def test_the_world_judges_moves_put_ahead_only_for_the_robots_their_key_names(tmp_path):
+def test_the_world_judges_moves_put_ahead_only_for_the_robots_their_key_names(tmp_path, capsys):
     world, probe, keys, got = _memory_world(tmp_path)
     try:
         # Robot 1's key carries a move of robot 0: refused whole, never half-applied.
@@ -132,6 +132,10 @@ def test_the_world_judges_moves_put_ahead_only_for_the_robots_their_key_names(tm
         # A move for a tick long judged is answered at once, refused.
         probe.put(keys.ahead_as([0]), encode(MoveAhead(tick=1, plan_id="p", moves=[(0, (1, 0), (2, 0))])))
         assert got[-1][1].results[0][1] is False and "over" in got[-1][1].results[0][3]
+        # A Tick that jumps (lost Ticks, or not the UAV's) is said, not taken in silence.
+        time.sleep(1.1)   # past the warnings' one-line-a-second throttle
+        probe.put(keys.tick, encode(Tick(k=9, ticks=12, plan_id="p")))
+        assert "Tick 9 follows Tick 1" in capsys.readouterr().err
     finally:
         world.close()
 
