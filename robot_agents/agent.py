@@ -130,6 +130,7 @@ class RobotPool(Lifecycle):
         self._work.put(None)
         if self._worker.is_alive() and threading.current_thread() is not self._worker:
             self._worker.join(JOIN_TIMEOUT_S)
+        self.dropped.flush()   # the warnings held back, said now rather than at exit
         self.release()
 
     # ------------------------------------------------------------ worker

@@ -368,6 +368,7 @@ class World(Lifecycle):
 
     def close(self) -> None:
         self.release()
+        self.warn.flush()   # the warnings held back, said now rather than at exit
         if self.desk is not None:
             self.desk.close()
         self._camera_pool.shutdown(wait=True, cancel_futures=True)

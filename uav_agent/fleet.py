@@ -215,5 +215,6 @@ class FleetLink:
         return None
 
     def close(self) -> None:
+        self._warn.flush()   # the warnings held back, said now rather than at exit
         for h in self._handles:
             h.close()

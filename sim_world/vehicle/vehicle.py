@@ -91,6 +91,7 @@ class Vehicle:
         self._threads = []
         self._journal.speaker = None
         self._link.close()
+        self._journal.warn.flush()   # the warnings held back, said now rather than at exit
 
     def __enter__(self) -> "Vehicle":
         return self.start()
