@@ -24,8 +24,9 @@ def free_udp_port() -> int:
 def link():
     """A vehicle sending to a port where a Flight listens, like PX4 SITL and its offboard API."""
     port = free_udp_port()
+    # Listening before the vehicle opens its socket, whose ephemeral port could otherwise be this one.
+    flight = Flight(f"udpin://127.0.0.1:{port}").open()
     vehicle = Vehicle(VehicleConfig(url=f"udpout:127.0.0.1:{port}", time_scale=20.0)).start()
-    flight = Flight(f"udpin://127.0.0.1:{port}")
     yield vehicle, flight
     flight.close()
     vehicle.stop()

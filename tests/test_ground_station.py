@@ -278,8 +278,10 @@ def test_mavsdk_heartbeats_keep_the_datalink(udp_port):
     """The UAV agent's MAVSDK link sends heartbeats: a healthy flight never trips the failsafe."""
     from uav_agent.flight import Flight
 
+    # The link listens before the vehicle opens its socket: the vehicle's own (ephemeral) port can
+    # then not be the one the link is about to bind (a CI run once failed with BIND_ERROR here).
+    flight = Flight(f"udpin://127.0.0.1:{udp_port}").open()
     vehicle = Vehicle(VehicleConfig(url=f"udpout:127.0.0.1:{udp_port}", time_scale=20.0)).start()
-    flight = Flight(f"udpin://127.0.0.1:{udp_port}")
     try:
         assert vehicle.set_param("COM_DL_LOSS_T", 2.5) == 2.5  # MAVSDK beats at 1 Hz
         flight.connect(timeout_s=10)
