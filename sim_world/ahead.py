@@ -27,7 +27,6 @@ class AheadDesk:
         self.lock = threading.Lock()
         self.pending: dict[int, dict[int, tuple[str, str, Ask]]] = {}   # tick -> robot -> (label, plan_id, ask)
         self.ticks: dict[int, Tick] = {}   # Ticks seen whose moves may still come (late ones)
-        self.seen = 0                      # the highest tick seen
 
     def on_move_ahead(self, label: str, msg: MoveAhead) -> str:
         """Keep the moves until their Tick; a move for a tick already begun goes to the desk now.
@@ -35,7 +34,7 @@ class AheadDesk:
         judged = self.desk.judge.tick
         if msg.tick <= judged and msg.tick not in self.ticks:
             late = msg.tick
-        elif msg.tick > max(judged, self.seen) + MAX_TICKS_AHEAD:
+        elif msg.tick > max(judged, self.desk.seen) + MAX_TICKS_AHEAD:
             return f"moves for tick {msg.tick} are too far ahead (the world is at tick {judged})"
         else:
             late = 0
@@ -56,13 +55,13 @@ class AheadDesk:
         with self.lock:
             if tick.k in self.ticks or tick.k <= self.desk.judge.tick:
                 return   # a resent Tick
-            if self.seen and tick.k > self.seen + 1:
+            seen = self.desk.seen            # the highest Tick heard, shared with the queried moves' desk
+            if seen and tick.k > seen + 1:
                 # The UAV's ticks come one by one: a jump is lost Ticks, or a Tick that is not the UAV's.
-                self.desk.warn(f"Tick {tick.k} follows Tick {self.seen}: moves put ahead for the ticks between "
+                self.desk.warn(f"Tick {tick.k} follows Tick {seen}: moves put ahead for the ticks between "
                                "are dropped")
             self.ticks[tick.k] = tick
-            self.seen = max(self.seen, tick.k)
-            self.desk.seen = self.seen
+            self.desk.seen = max(seen, tick.k)
             for old in [t for t in self.ticks if t < tick.k - 1]:
                 del self.ticks[old]
             for old in [t for t in self.pending if t < tick.k]:

@@ -107,7 +107,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         name, free, starts, goals, assign = _load_instance(args)
         t_load = time.perf_counter() - t0
         from uav_agent.planning.registry import check_name
-        check_name(args.planner)     # a misspelt name too is a one-line error before numba's start-up
+        check_name(args.planner)     # a misspelt name is a one-line error before numba's start-up and the compile
         # Imported after the input is checked: numba's start-up need not delay a one-line error.
         from uav_agent.planning.pipeline import plan_mission
         from uav_agent.planning.plan_io import write_plan
@@ -130,9 +130,6 @@ def _compile_first(planner: str, connectivity: int) -> None:
     14251 instead of 13851), and the same command must give the same plan on every run. The
     lock keeps a mission or another command from compiling the same cache at once."""
     from uav_agent.planning import warm
-    from uav_agent.planning.registry import check_name
-
-    check_name(planner)          # a misspelt name is a one-line error, not one after the compile
     if warm.is_warm():
         return
     from uav_agent.planning.pipeline import warm_up
