@@ -88,6 +88,7 @@ def _numba_cache_path(cache_dir: str | None) -> str:
     if cache_dir:
         env["NUMBA_CACHE_DIR"] = cache_dir
     code = "from uav_agent.planning.lacam import _search; print(_search._cache._cache_path)"
+    env["UAV_ROBOTS_KERNELS"] = "jit"     # numba's dispatchers, even beside an ahead-of-time build
     return subprocess.run([sys.executable, "-c", code], cwd=ROOT, env={**env, "PYTHONPATH": str(ROOT)},
                           capture_output=True, text=True, check=True).stdout.strip()
 

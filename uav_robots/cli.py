@@ -68,6 +68,7 @@ _SUBCOMMANDS = {
     "world": ("sim_world.world", "add_world_parser"),
     "robot": ("robot_agents.agent", "add_robot_parser"),
     "plan": ("uav_robots.plan_cli", "add_plan_parser"),
+    "build": ("uav_robots.plan_cli", "add_build_parser"),
     "bench": ("uav_robots.plan_cli", "add_bench_parser"),
     "conformance": ("uav_robots.conformance_cli", "add_conformance_parser"),
     "replay": ("uav_robots.replay_cli", "add_replay_parser"),

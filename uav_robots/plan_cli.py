@@ -174,6 +174,27 @@ def _print_plan(name, shape, result, t_load: float, out: str) -> None:
 
 # ---------------------------------------------------------------------------- bench
 
+def add_build_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "build", help="compile the planners ahead of time (about half a minute on two cores, once per machine)",
+        description="Compile the planning kernels ahead of time into a shared library (numba's pycc and the "
+                    "system's C compiler), beside numba's cache. Every later process loads it without numba: "
+                    "`uav-robots plan` for 50 robots takes about 0.5 s instead of 1.2 s, and a first large "
+                    "mission does not wait for a compile. Rebuild after changing the planners' code (a changed "
+                    "source uses numba's JIT until then).")
+    p.set_defaults(func=cmd_build)
+    return p
+
+
+def cmd_build(args) -> int:
+    from uav_agent.planning import aot, warm
+    if warm.built():
+        print(f"the planner kernels are built already ({warm.build_dir()})")
+        return 0
+    print("compiling the planner kernels ahead of time (about half a minute on two cores)...", flush=True)
+    return aot.build_once()
+
+
 def add_bench_parser(subparsers) -> argparse.ArgumentParser:
     from uav_agent.planning.assignment import ASSIGNERS
     from uav_agent.planning.registry import DEFAULT_PLANNER, PLANNERS

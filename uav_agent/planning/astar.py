@@ -16,7 +16,7 @@ import heapq
 import math
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from protocol.errors import PlanningError
 from protocol.grid import on_grid

@@ -22,7 +22,7 @@ import time
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from protocol.errors import PlanningError
 

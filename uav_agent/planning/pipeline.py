@@ -194,12 +194,13 @@ def warm_up(planner: str = DEFAULT_PLANNER, connectivity: int = 4) -> float:
     """
     from protocol.process import die_with_parent
 
+    from .jit import AHEAD_OF_TIME
     from .lacam import warm_up as warm_up_fast_planners
     from .warm import cached
 
     t = time.perf_counter()
     aside = None
-    if not cached("lacam", "_search"):
+    if not AHEAD_OF_TIME and not cached("lacam", "_search"):
         code = "from uav_agent.planning.lacam import warm_up; warm_up(parts=('search', 'pibt'))"
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(
             filter(None, [str(FsPath(__file__).resolve().parents[2]), os.environ.get("PYTHONPATH")]))}

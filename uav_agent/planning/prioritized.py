@@ -33,7 +33,7 @@ import math
 import time
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from protocol.errors import PlanningError
 

@@ -21,7 +21,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from .jit import njit
 from scipy.spatial import cKDTree
 
 from protocol.errors import PlanningError

@@ -16,7 +16,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .distances import Instance, compile_problem
 from .grid_kernels import (

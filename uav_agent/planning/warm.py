@@ -23,6 +23,7 @@ import errno
 import fcntl
 import hashlib
 import os
+import platform
 import signal
 import subprocess
 import sys
@@ -66,12 +67,42 @@ def is_warm() -> bool:
     """True when the kernels the default planner needs are all in numba's cache. A source
     directory numba cannot write to (numba then caches elsewhere) always reads as cold: the
     warm process then only loads the kernels, which costs about a second."""
-    return all(cached(m, f) for m, f in MARKERS)
+    return built() or all(cached(m, f) for m, f in MARKERS)
 
 
-def lock_path() -> Path:
+def _cpu_flags() -> str:
+    try:
+        with open("/proc/cpuinfo") as f:
+            return next((line for line in f if line.startswith("flags")), "")
+    except OSError:
+        return ""
+
+
+def build_name() -> str:
+    """Names an ahead-of-time build (`aot.py`): the planning sources (numba's cache only
+    checks a kernel's own file), Python, NumPy and the CPU it was compiled for."""
+    import numpy as np
+    h = hashlib.sha256()
+    for p in sorted(PACKAGE_DIR.glob("*.py")):
+        h.update(p.name.encode())
+        h.update(p.read_bytes())
+    h.update(f"{sys.version}|{np.__version__}|{platform.machine()}|{_cpu_flags()}".encode())
+    return f"kernels_{h.hexdigest()[:16]}"
+
+
+def build_dir() -> Path:
+    """Where the ahead-of-time builds live: beside numba's cache of the same kernels."""
+    return cache_dir() / "aot"
+
+
+def built() -> bool:
+    """True when the sources as they are have an ahead-of-time build (not loading it)."""
+    return sys.platform.startswith("linux") and (build_dir() / f"{build_name()}.json").is_file()
+
+
+def lock_path(what: str = "kernels") -> Path:
     key = hashlib.blake2b(str(cache_dir()).encode(), digest_size=8).hexdigest()
-    return Path(tempfile.gettempdir()) / f"uav-robots-kernels-{key}.lock"
+    return Path(tempfile.gettempdir()) / f"uav-robots-{what}-{key}.lock"
 
 
 def _try_lock(fd: int, wait: bool) -> bool:
@@ -85,10 +116,11 @@ def _try_lock(fd: int, wait: bool) -> bool:
 
 
 @contextmanager
-def kernel_lock(wait: bool = True) -> Iterator[bool]:
+def kernel_lock(wait: bool = True, what: str = "kernels") -> Iterator[bool]:
     """Holds the cache's compile lock (waiting for a compile in another process when `wait`);
-    yields False when `wait` is False and another process holds it."""
-    fd = os.open(lock_path(), os.O_RDWR | os.O_CREAT, 0o666)
+    yields False when `wait` is False and another process holds it. `what="aot"`: the lock of
+    the ahead-of-time build, which nobody waits for."""
+    fd = os.open(lock_path(what), os.O_RDWR | os.O_CREAT, 0o666)
     try:
         yield _try_lock(fd, wait)
     finally:
@@ -123,7 +155,7 @@ def start(planner: str | None = None, connectivity: int = 4) -> subprocess.Popen
             os.nice(NICE)
 
         # the lock belongs to the open file, which the child shares: it holds it until it exits
-        return subprocess.Popen([sys.executable, "-m", "uav_agent.planning.warm", "--locked-fd", str(fd),
+        return subprocess.Popen([sys.executable, "-m", "uav_agent.planning.warm", "--locked-fd", str(fd), "--build",
                                  "--connectivity", str(connectivity), *(["--planner", planner] if planner else [])],
                                 env=env, pass_fds=(fd,), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.DEVNULL, preexec_fn=child_setup)
@@ -148,6 +180,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--planner", help="the planner the mission will use (default: the default planner)")
     p.add_argument("--connectivity", type=int, choices=(4, 8), default=4)
     p.add_argument("--locked-fd", type=int, help="an inherited descriptor of the lock file, already locked")
+    p.add_argument("--build", action="store_true", help="then build the kernels ahead of time (aot.py)")
     args = p.parse_args(argv)
     # SIGTERM (the launcher stopping) unwinds, so that warm_up's `finally` stops its second compiler
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
@@ -158,10 +191,16 @@ def main(argv: list[str] | None = None) -> int:
     planner = args.planner or DEFAULT_PLANNER
     if args.locked_fd is not None:
         seconds = warm_up(planner, args.connectivity)
+        os.close(args.locked_fd)        # the last holder: whoever waits loads the kernels now
     else:
         with kernel_lock():
             seconds = warm_up(planner, args.connectivity)
     print(f"planner kernels ready in {seconds:.1f} s ({cache_dir()})")
+    if args.build and not built():
+        # with the JIT's cache filled, the build for the next processes (see aot.py), if this
+        # one lives long enough (a mission's launcher stops it when the mission ends)
+        from .aot import build_once
+        return build_once()
     return 0
 
 

@@ -1,0 +1,138 @@
+"""The planning kernels built ahead of time (uav_agent/planning/aot.py, jit.py): a real build
+with numba's pycc and the C compiler into a cache directory of the test's own, then fresh
+processes that plan with it, without numba, the very plans numba's JIT gives."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import pytest
+
+from uav_agent.planning.jit import kind
+
+ROOT = Path(__file__).resolve().parents[1]
+
+needs_compiler = pytest.mark.skipif(not sys.platform.startswith("linux") or shutil.which("cc") is None,
+                                    reason="the ahead-of-time build needs Linux and a C compiler")
+
+
+class _Pair(NamedTuple):
+    a: np.ndarray
+    n: int
+
+
+def test_kind_tells_apart_what_a_compiled_signature_does():
+    a = np.zeros((3, 4), dtype=np.int32)
+    assert kind(a) == ("<i4", 2, "C", True)
+    assert kind(np.asfortranarray(a)) == ("<i4", 2, "F", True)
+    assert kind(a[:, ::2]) == ("<i4", 2, "A", True)
+    ro = a.copy()
+    ro.flags.writeable = False
+    assert kind(ro) == ("<i4", 2, "C", False)
+    assert kind(a.astype(np.uint16)) != kind(a)
+    # bool before int: True is an int to Python, a boolean to numba
+    assert (kind(True), kind(1), kind(1.0), kind(np.int64(1))) == ("b", "i", "f", "<i8")
+    assert kind(_Pair(a, 3)) == ("_Pair", ("<i4", 2, "C", True), "i")
+
+
+def _env(cache: Path | None, kernels: str | None = None) -> dict[str, str]:
+    """The environment of a child process: `cache` as NUMBA_CACHE_DIR (None: numba's default)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "UAV_ROBOTS_KERNELS")}
+    if cache is not None:
+        env["NUMBA_CACHE_DIR"] = str(cache)
+    env["PYTHONPATH"] = str(ROOT)
+    if kernels:
+        env["UAV_ROBOTS_KERNELS"] = kernels
+    return env
+
+
+# Plans with every planner on a small warehouse in both connectivities, refines one plan (its
+# rounds depend on the clock: validated, not compared), and says which kernels the process used
+# and whether it imported numba.
+_PLANS = r"""
+import json, sys
+from scenarios import maps
+from uav_agent.planning.pipeline import plan_mission
+from uav_agent.planning import jit
+free = maps.warehouse(4, 6)
+out = {}
+for robots in (30, 200):         # LaCAM's guide paths alone, then its search (too dense for guides)
+    place = maps.place(free, robots, 3)
+    for conn in (4, 8):
+        for planner in ("lacam", "pibt", "prioritized", "paper-astar", "paper-prm"):
+            r = plan_mission(free, place.starts, place.goals, planner=planner, connectivity=conn, seed=1)
+            out[f"{robots}/{planner}/{conn}"] = [r.metrics, r.paths]
+        plan_mission(free, place.starts, place.goals, planner="pibt", connectivity=conn, refine_s=0.2, seed=1)
+print(json.dumps({"mode": jit.MODE, "numba": "numba" in sys.modules, "plans": out}))
+"""
+
+# A kernel called with an argument layout the build never saw: numba's JIT takes that call.
+_FALLBACK = r"""
+import json, sys
+import numpy as np
+from uav_agent.planning import jit
+from uav_agent.planning.distances import grid_graph
+free = np.ones((5, 7), dtype=bool); free[2, 1:6] = False
+g = grid_graph(free, 4)
+from uav_agent.planning.distances import _build_neighbours
+c = _build_neighbours(free, g.index, g.cells, 4)
+f = _build_neighbours(np.asfortranarray(free), g.index, g.cells, 4)
+print(json.dumps({"mode": jit.MODE, "same": bool((c == f).all()), "numba": "numba" in sys.modules}))
+"""
+
+
+@pytest.fixture(scope="module")
+def build(tmp_path_factory):
+    cache = tmp_path_factory.mktemp("aot-cache")
+    done = subprocess.run([sys.executable, "-m", "uav_robots", "build"], cwd=ROOT, env=_env(cache),
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "built ahead of time" in done.stdout
+    return cache
+
+
+def _run(code: str, env: dict[str, str]) -> tuple[dict, str]:
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    return json.loads(done.stdout.strip().splitlines()[-1]), done.stderr
+
+
+@needs_compiler
+def test_a_build_plans_without_numba_and_as_the_jit_does(build):
+    again = subprocess.run([sys.executable, "-m", "uav_robots", "build"], cwd=ROOT, env=_env(build),
+                           capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0 and "built already" in again.stdout
+    aot, err = _run(_PLANS, _env(build))
+    assert aot["mode"] == "aot" and not aot["numba"], err
+    assert "no ahead-of-time build" not in err       # every call the planners make was built
+    jit_plans, _ = _run(_PLANS, _env(None, kernels="jit"))    # numba's cache, which the suite shares
+    assert jit_plans["mode"] == "jit"
+    assert aot["plans"] == jit_plans["plans"]
+
+
+@needs_compiler
+def test_an_argument_the_build_never_saw_falls_back_to_numba(build):
+    out, err = _run(_FALLBACK, _env(build))
+    assert out == {"mode": "aot", "same": True, "numba": True}
+    assert "_build_neighbours has no ahead-of-time build for these argument types" in err
+
+
+@needs_compiler
+def test_a_changed_source_is_not_loaded_from_an_old_build(build):
+    # another build's name (an edit of any planning source): the process keeps the JIT
+    manifest = next(build.glob("*/aot/kernels_*.json"))
+    moved = manifest.with_name("kernels_0000000000000000.json")
+    manifest.rename(moved)
+    try:
+        out, _ = _run("import json; from uav_agent.planning import jit; print(json.dumps({'mode': jit.MODE}))",
+                      _env(build))
+        assert out["mode"] == "jit"
+    finally:
+        moved.rename(manifest)
