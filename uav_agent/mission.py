@@ -617,7 +617,8 @@ class Mission:
             result = self._plan_while_compiling(model, starts, options)
         if result is None and self._warm.is_alive():
             self.progress.phase("plan", "compiling the planners (first run on this machine only, ~30 s; "
-                                        "later runs load numba's cache)")
+                                        "later runs load numba's cache; `uav-robots build` compiles them "
+                                        "ahead of time instead)")
         try:
             if result is None:
                 self._warm.join()

@@ -134,8 +134,8 @@ def _compile_first(planner: str, connectivity: int) -> None:
         return
     from uav_agent.planning.pipeline import warm_up
 
-    print("compiling the planners' kernels (first run on this machine only; later runs load numba's cache)",
-          flush=True)
+    print("compiling the planners' kernels (first run on this machine only; later runs load numba's cache; "
+          "`uav-robots build` compiles them ahead of time instead)", flush=True)
     with warm.kernel_lock():
         if not warm.is_warm():       # unless another process just compiled them
             warm_up(planner, connectivity)
@@ -176,7 +176,7 @@ def _print_plan(name, shape, result, t_load: float, out: str) -> None:
 
 def add_build_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
-        "build", help="compile the planners ahead of time (about half a minute on two cores, once per machine)",
+        "build", help="compile the planners ahead of time (about a minute on two cores, once per machine)",
         description="Compile the planning kernels ahead of time into a shared library (numba's pycc and the "
                     "system's C compiler), beside numba's cache. Every later process loads it without numba: "
                     "`uav-robots plan` for 50 robots takes about 0.5 s instead of 1.2 s, and a first large "
@@ -191,7 +191,8 @@ def cmd_build(args) -> int:
     if warm.built():
         print(f"the planner kernels are built already ({warm.build_dir()})")
         return 0
-    print("compiling the planner kernels ahead of time (about half a minute on two cores)...", flush=True)
+    print("compiling the planner kernels ahead of time (about a minute on two cores, half that when numba "
+          "has compiled them already)...", flush=True)
     return aot.build_once()
 
 

@@ -22,6 +22,7 @@ import importlib
 import json
 import os
 import pickle
+import re
 import shutil
 import subprocess
 import sys
@@ -108,7 +109,7 @@ def compile_recorded(records: dict, out_dir: Path, name: str) -> dict[str, list]
 
     cc = CC(name)
     cc.target_cpu = "host"
-    work = Path(tempfile.mkdtemp(prefix="uavr-aot-"))
+    work = Path(tempfile.mkdtemp(prefix="out-"))     # TMPDIR: the build's own work directory
     cc.output_dir = str(work)
     exports: dict[str, list] = {}
     for i, ((kernel, key), argtypes) in enumerate(sorted(records.items(), key=lambda kv: repr(kv[0]))):
@@ -131,37 +132,76 @@ def compile_recorded(records: dict, out_dir: Path, name: str) -> dict[str, list]
     return {"file": built.name, "kernels": exports}
 
 
+class BuildError(Exception):
+    pass
+
+
+def _last_line(path: Path) -> str:
+    """A child's error: the last line naming an exception (what follows it can be advice), else its last line."""
+    lines = [ln.strip() for ln in path.read_text(errors="replace").splitlines() if ln.strip()]
+    named = [ln for ln in lines if re.match(r"^[A-Za-z_.]*(Error|Exception)\b", ln)]
+    return (named or lines or ["no message"])[-1]
+
+
+def _work_dir(out_dir: Path) -> Path:
+    """A work directory of this process's own under `out_dir`, after removing those of builds
+    that were killed (their process is gone): pycc and the C compiler leave theirs behind."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for old in out_dir.glob(".work-*"):
+        try:
+            os.kill(int(old.name.split("-", 1)[1]), 0)
+        except (ValueError, ProcessLookupError):
+            shutil.rmtree(old, ignore_errors=True)
+        except PermissionError:
+            pass
+    work = out_dir / f".work-{os.getpid()}"
+    shutil.rmtree(work, ignore_errors=True)
+    work.mkdir()
+    return work
+
+
 def build(timeout: float = BUILD_TIMEOUT_S) -> Path:
     """Records, then compiles two libraries side by side, each step in child processes; writes
     the manifest last and returns its path."""
     from .warm import build_dir, build_name
     name = build_name()
     out_dir = build_dir()
-    with tempfile.TemporaryDirectory(prefix="uavr-aot-rec-") as tmp:
-        rec = Path(tmp) / "recorded.pkl"
-        subprocess.run([sys.executable, "-m", "uav_agent.planning.aot", "--record", str(rec)], check=True,
-                       env=_child_env(UAV_ROBOTS_KERNELS="record", NUMBA_DISABLE_JIT="1"), timeout=timeout,
-                       stdin=subprocess.DEVNULL)
+    tmp = _work_dir(out_dir)
+    try:
+        rec = tmp / "recorded.pkl"
+        with open(tmp / "record.err", "w") as err:
+            done = subprocess.run([sys.executable, "-m", "uav_agent.planning.aot", "--record", str(rec)],
+                                  env=_child_env(UAV_ROBOTS_KERNELS="record", NUMBA_DISABLE_JIT="1",
+                                                 TMPDIR=str(tmp)),
+                                  timeout=timeout, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err)
+        if done.returncode != 0:
+            raise BuildError(f"recording the kernels' signatures failed: {_last_line(tmp / 'record.err')}")
         records = pickle.loads(rec.read_bytes())
         parts = [{k: v for k, v in records.items() if k[0].startswith(SECOND_LIBRARY) == second}
                  for second in (False, True)]
         jobs = []
         for i, part in enumerate(parts):
-            (Path(tmp) / f"part{i}.pkl").write_bytes(pickle.dumps(part))
-            jobs.append(subprocess.Popen(
-                [sys.executable, "-m", "uav_agent.planning.aot", "--compile", str(Path(tmp) / f"part{i}.pkl"),
-                 "--name", f"{name}_{i}", "--out", str(out_dir)],
-                env=_child_env(UAV_ROBOTS_KERNELS="jit"), stdin=subprocess.DEVNULL))
+            (tmp / f"part{i}.pkl").write_bytes(pickle.dumps(part))
+            with open(tmp / f"part{i}.err", "w") as err:
+                jobs.append(subprocess.Popen(
+                    [sys.executable, "-m", "uav_agent.planning.aot", "--compile", str(tmp / f"part{i}.pkl"),
+                     "--name", f"{name}_{i}", "--out", str(out_dir)],
+                    env=_child_env(UAV_ROBOTS_KERNELS="jit", TMPDIR=str(tmp)), stdin=subprocess.DEVNULL,
+                    stdout=subprocess.DEVNULL, stderr=err))
         try:
-            for job in jobs:
+            for i, job in enumerate(jobs):
                 if job.wait(timeout=timeout) != 0:
-                    raise subprocess.CalledProcessError(job.returncode, job.args)
+                    raise BuildError(f"compiling library {i} failed: {_last_line(tmp / f'part{i}.err')}")
+        except subprocess.TimeoutExpired:
+            raise BuildError(f"the build took over {timeout:g} s") from None
         finally:
             for job in jobs:
                 if job.poll() is None:
                     job.kill()
                     job.wait()
-        libraries = [json.loads((Path(tmp) / f"part{i}.json").read_text()) for i in range(len(parts))]
+        libraries = [json.loads((tmp / f"part{i}.json").read_text()) for i in range(len(parts))]
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
     tmp_manifest = out_dir / f".{name}.json.tmp"
     tmp_manifest.write_text(json.dumps({"libraries": libraries}))
     os.replace(tmp_manifest, out_dir / f"{name}.json")     # last: its presence means a whole build
@@ -182,7 +222,7 @@ def build_once() -> int:
             return 0
         try:
             manifest = build()
-        except (subprocess.CalledProcessError, subprocess.TimeoutExpired, OSError) as exc:
+        except (BuildError, subprocess.TimeoutExpired, OSError) as exc:
             print(f"error: the ahead-of-time build failed ({exc}); the planners keep numba's JIT",
                   file=sys.stderr)
             return 1

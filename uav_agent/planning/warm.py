@@ -155,7 +155,7 @@ def start(planner: str | None = None, connectivity: int = 4) -> subprocess.Popen
             os.nice(NICE)
 
         # the lock belongs to the open file, which the child shares: it holds it until it exits
-        return subprocess.Popen([sys.executable, "-m", "uav_agent.planning.warm", "--locked-fd", str(fd), "--build",
+        return subprocess.Popen([sys.executable, "-m", "uav_agent.planning.warm", "--locked-fd", str(fd),
                                  "--connectivity", str(connectivity), *(["--planner", planner] if planner else [])],
                                 env=env, pass_fds=(fd,), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.DEVNULL, preexec_fn=child_setup)
@@ -180,7 +180,6 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--planner", help="the planner the mission will use (default: the default planner)")
     p.add_argument("--connectivity", type=int, choices=(4, 8), default=4)
     p.add_argument("--locked-fd", type=int, help="an inherited descriptor of the lock file, already locked")
-    p.add_argument("--build", action="store_true", help="then build the kernels ahead of time (aot.py)")
     args = p.parse_args(argv)
     # SIGTERM (the launcher stopping) unwinds, so that warm_up's `finally` stops its second compiler
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
@@ -191,16 +190,10 @@ def main(argv: list[str] | None = None) -> int:
     planner = args.planner or DEFAULT_PLANNER
     if args.locked_fd is not None:
         seconds = warm_up(planner, args.connectivity)
-        os.close(args.locked_fd)        # the last holder: whoever waits loads the kernels now
     else:
         with kernel_lock():
             seconds = warm_up(planner, args.connectivity)
     print(f"planner kernels ready in {seconds:.1f} s ({cache_dir()})")
-    if args.build and not built():
-        # with the JIT's cache filled, the build for the next processes (see aot.py), if this
-        # one lives long enough (a mission's launcher stops it when the mission ends)
-        from .aot import build_once
-        return build_once()
     return 0
 
 
