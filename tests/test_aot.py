@@ -37,7 +37,9 @@ def test_kind_tells_apart_what_a_compiled_signature_does():
     assert kind(ro) == ("<i4", 2, "C", False)
     assert kind(a.astype(np.uint16)) != kind(a)
     # bool before int: True is an int to Python, a boolean to numba
-    assert (kind(True), kind(1), kind(1.0), kind(np.int64(1))) == ("b", "i", "f", "<i8")
+    assert (kind(True), kind(1), kind(1.0), kind(np.int32(1))) == ("b", "i", "f", "<i4")
+    # numba types these scalars as the Python values: the same compiled function takes both
+    assert (kind(np.bool_(True)), kind(np.int64(1)), kind(np.float64(1))) == ("b", "i", "f")
     assert kind(_Pair(a, 3)) == ("_Pair", ("<i4", 2, "C", True), "i")
 
 

@@ -100,6 +100,36 @@ def test_cache_dir_is_where_numba_caches(tmp_path, monkeypatch):
     assert warm.cache_dir() == Path(_numba_cache_path(None))
 
 
+def test_a_changed_source_empties_numba_cache_once(tmp_path, monkeypatch):
+    """numba checks a cached kernel against its own file only; the stamp of every planning source
+    beside the cache empties it when any of them changed (an edit of a helper in another file)."""
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    d = warm.cache_dir()
+    d.mkdir(parents=True)
+    old = [d / "lacam._search-277.py311.nbi", d / "lacam._search-277.py311.1.nbc"]
+    for f in old:
+        f.write_bytes(b"compiled against other sources")
+    (d / "sources.stamp").write_text("kernels_0000000000000000")
+    warm.drop_stale_cache()
+    assert not any(f.exists() for f in old)
+    assert (d / "sources.stamp").read_text() == warm.build_name()
+    # the same sources: what was cached since stays
+    kept = d / "pibt._run-315.py311.nbi"
+    kept.write_bytes(b"compiled against these sources")
+    warm.drop_stale_cache()
+    assert kept.exists()
+    # and a JIT process does it before loading any kernel: a real kernel compiles into the fresh cache
+    code = ("from uav_agent.planning.distances import grid_graph; import numpy as np; "
+            "print(grid_graph(np.ones((3, 4), dtype=bool), 4).n)")
+    (d / "sources.stamp").write_text("kernels_0000000000000000")
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path), "UAV_ROBOTS_KERNELS": "jit", "PYTHONPATH": str(ROOT)}
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0 and done.stdout.strip() == "12", done.stderr[-1000:]
+    assert not kept.exists() and (d / "sources.stamp").read_text() == warm.build_name()
+    assert list(d.glob("distances.*.nbi"))
+
+
 def test_warm_needs_every_marker_newer_than_its_source(tmp_path, monkeypatch):
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
     d = warm.cache_dir()

@@ -49,8 +49,12 @@ def kind(x: Any) -> Any:
     if isinstance(x, tuple):
         return (t.__name__, *[kind(v) for v in x])
     if isinstance(x, np.generic):
-        return x.dtype.str
+        # numba types a NumPy int64, float64 or bool scalar as it does the Python value
+        return _SCALAR_KIND.get(x.dtype.str, x.dtype.str)
     return t.__name__
+
+
+_SCALAR_KIND = {"<i8": "i", "<f8": "f", "|b1": "b"}
 
 
 def _load_build() -> dict[str, dict] | None:
@@ -145,6 +149,9 @@ def _enable_jit():
     """numba, ready to compile kernels beside (or instead of) the ahead-of-time build."""
     global monotonic
     import numba
+    if not numba.config.DISABLE_JIT:
+        from .warm import drop_stale_cache
+        drop_stale_cache()
     _array_maths_without_blas()
     monotonic = _jit_monotonic()
     if _BUILD is not None:

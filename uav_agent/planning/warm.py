@@ -78,16 +78,55 @@ def _cpu_flags() -> str:
         return ""
 
 
+_NAME: list[str] = []
+
+
 def build_name() -> str:
     """Names an ahead-of-time build (`aot.py`): the planning sources (numba's cache only
     checks a kernel's own file), Python, NumPy and the CPU it was compiled for."""
+    if _NAME:
+        return _NAME[0]
     import numpy as np
     h = hashlib.sha256()
     for p in sorted(PACKAGE_DIR.glob("*.py")):
         h.update(p.name.encode())
         h.update(p.read_bytes())
     h.update(f"{sys.version}|{np.__version__}|{platform.machine()}|{_cpu_flags()}".encode())
-    return f"kernels_{h.hexdigest()[:16]}"
+    _NAME.append(f"kernels_{h.hexdigest()[:16]}")
+    return _NAME[0]
+
+
+def drop_stale_cache() -> None:
+    """Empties numba's cache of these kernels when any planning source changed since it was filled.
+
+    numba checks a cached kernel against its own file only, yet a kernel holds the code of the
+    helpers it calls from other files: after an edit of `grid_kernels.py` alone, LaCAM's cached
+    search kept the old helpers (here: an object-mode clock whose module had lost `time`, a
+    NameError at run time; in general, silently old behaviour). A stamp beside the cache names
+    the sources it was compiled from."""
+    d = cache_dir()
+    stamp = d / "sources.stamp"
+    name = build_name()
+    try:
+        if stamp.read_text() == name:
+            return
+    except OSError:
+        pass
+    with kernel_lock(what="stamp"):
+        try:
+            if stamp.read_text() == name:
+                return      # another process has just done it
+        except OSError:
+            pass
+        for old in list(d.glob("*.nbi")) + list(d.glob("*.nbc")):
+            old.unlink(missing_ok=True)
+        try:
+            d.mkdir(parents=True, exist_ok=True)
+            tmp = d / f".sources.stamp.{os.getpid()}"
+            tmp.write_text(name)
+            os.replace(tmp, stamp)
+        except OSError:
+            pass    # a cache directory numba cannot write to either: it then caches elsewhere
 
 
 def build_dir() -> Path:
