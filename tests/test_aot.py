@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -14,12 +13,13 @@ from typing import NamedTuple
 import numpy as np
 import pytest
 
+from uav_agent.planning.aot import missing_tools
 from uav_agent.planning.jit import kind
 
 ROOT = Path(__file__).resolve().parents[1]
 
-needs_compiler = pytest.mark.skipif(not sys.platform.startswith("linux") or shutil.which("cc") is None,
-                                    reason="the ahead-of-time build needs Linux and a C compiler")
+needs_compiler = pytest.mark.skipif(missing_tools() is not None,
+                                    reason=f"the ahead-of-time build needs {missing_tools()}")
 
 
 class _Pair(NamedTuple):
@@ -138,3 +138,13 @@ def test_a_changed_source_is_not_loaded_from_an_old_build(build):
         assert out["mode"] == "jit"
     finally:
         moved.rename(manifest)
+
+
+def test_a_machine_without_a_compiler_is_told_in_one_line(tmp_path):
+    env = {**_env(tmp_path), "CC": str(tmp_path / "no-such-cc")}
+    done = subprocess.run([sys.executable, "-m", "uav_robots", "build"], cwd=ROOT, env=env, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 2
+    assert done.stderr.strip() == ("error: the ahead-of-time build needs a C compiler (`cc`); "
+                                   "the planners keep numba's JIT")
+    assert not list(tmp_path.glob("*/aot/kernels_*"))

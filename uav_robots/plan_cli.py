@@ -191,6 +191,9 @@ def cmd_build(args) -> int:
     if warm.built():
         print(f"the planner kernels are built already ({warm.build_dir()})")
         return 0
+    lacking = aot.missing_tools()
+    if lacking is not None:
+        raise UavRobotsError(f"the ahead-of-time build needs {lacking}; the planners keep numba's JIT")
     print("compiling the planner kernels ahead of time (about a minute on two cores, half that when numba "
           "has compiled them already)...", flush=True)
     return aot.build_once()

@@ -26,6 +26,7 @@ import re
 import shutil
 import subprocess
 import sys
+import sysconfig
 import tempfile
 import time
 import warnings
@@ -211,10 +212,25 @@ def build(timeout: float = BUILD_TIMEOUT_S) -> Path:
     return out_dir / f"{name}.json"
 
 
+def missing_tools() -> str | None:
+    """What the build needs and this machine lacks (None: nothing)."""
+    if not sys.platform.startswith("linux"):
+        return "Linux (the build is for Linux only)"
+    if shutil.which(os.environ.get("CC", "cc")) is None:
+        return "a C compiler (`cc`)"
+    if not (Path(sysconfig.get_paths()["include"]) / "Python.h").is_file():
+        return "Python's C headers (Python.h; Debian: python3-dev)"
+    return None
+
+
 def build_once() -> int:
     """`build` unless another process is building: 0 when built (or being built), 1 on failure."""
     from .warm import kernel_lock
 
+    lacking = missing_tools()
+    if lacking is not None:
+        print(f"error: the ahead-of-time build needs {lacking}; the planners keep numba's JIT", file=sys.stderr)
+        return 1
     began = time.perf_counter()
     with kernel_lock(wait=False, what="aot") as mine:
         if not mine:

@@ -67,7 +67,8 @@ def is_warm() -> bool:
     """True when the kernels the default planner needs are all in numba's cache. A source
     directory numba cannot write to (numba then caches elsewhere) always reads as cold: the
     warm process then only loads the kernels, which costs about a second."""
-    return built() or all(cached(m, f) for m, f in MARKERS)
+    aot = built() and os.environ.get("UAV_ROBOTS_KERNELS", "") != "jit"   # jit.py's switch
+    return aot or all(cached(m, f) for m, f in MARKERS)
 
 
 def _cpu_flags() -> str:
