@@ -24,7 +24,7 @@ import sys
 import tempfile
 import threading
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from protocol.errors import UavRobotsError
@@ -47,6 +47,7 @@ class Run:
     verified: str                     # robots verified on their goals / robots
     out: str
     error: str = ""
+    build_s: float | None = None      # `uav-robots build` into the run's empty cache first (--build)
 
 
 def run_once(i: int, args: argparse.Namespace, out: Path, extra: list[str], name: str) -> Run:
@@ -61,6 +62,16 @@ def run_once(i: int, args: argparse.Namespace, out: Path, extra: list[str], name
     with tempfile.TemporaryDirectory(prefix="uavr-bench-numba-") as cache:
         if args.cold_cache:
             env["NUMBA_CACHE_DIR"] = cache
+        build_s = None
+        if args.build:
+            began = time.perf_counter()
+            built = subprocess.run([sys.executable, "-m", "uav_robots", "build"], env=env, capture_output=True,
+                                   text=True, timeout=RUN_TIMEOUT_S)
+            build_s = round(time.perf_counter() - began, 2)
+            if built.returncode != 0:
+                last = (built.stderr.strip().splitlines() or ["no output"])[-1]
+                return Run(i, built.returncode, "build failed", None, None, 0.0, 0, 0, None, "", name,
+                           f"uav-robots build: {last}", build_s)
         summary: list[float] = []
         lines: list[str] = []
         start = time.perf_counter()
@@ -84,7 +95,7 @@ def run_once(i: int, args: argparse.Namespace, out: Path, extra: list[str], name
         reader.join(timeout=10.0)
     (out / "bench-stdout.txt").parent.mkdir(parents=True, exist_ok=True)
     (out / "bench-stdout.txt").write_text("\n".join(lines) + "\n", encoding="utf-8")
-    return _from_report(i, code, out, name, summary[0] if summary else None, wall, lines)
+    return replace(_from_report(i, code, out, name, summary[0] if summary else None, wall, lines), build_s=build_s)
 
 
 def _from_report(i: int, code: int, out: Path, name: str, summary_s: float | None, wall: float,
@@ -120,7 +131,9 @@ def markdown(runs: list[Run], args: argparse.Namespace, command: str) -> str:
     lines = [f"# `uav-robots run` {len(runs)} times in a row", "",
              f"Command (whole process, timed around it): `{command}`"
              + (", each run with an empty `NUMBA_CACHE_DIR` (a new machine's first run)" if args.cold_cache else
-                ", numba's cache as it is (warm after the first run)") + ".", "",
+                ", numba's cache as it is (warm after the first run)")
+             + (", after `uav-robots build` into that cache (timed apart, not in the run's figures)"
+                if args.build else "") + ".", "",
              f"- completed (exit 0): {len(ok)} of {len(runs)}",
              f"- survey + perceive: {_stats(sp)}"
              + (f"; within {args.target_s:g} s: {sum(1 for v in sp if v <= args.target_s)} of {len(sp)}"
@@ -130,13 +143,14 @@ def markdown(runs: list[Run], args: argparse.Namespace, command: str) -> str:
              f"- closer looks: {sum(r.closer_looks for r in runs)}, retakes: {sum(r.retakes for r in runs)}, "
              f"collisions: {sum(r.collisions or 0 for r in runs)}", "",
              "| run | exit | outcome | verified | survey + perceive | to summary | to exit | closer looks | retakes "
-             "| collisions |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "| collisions |" + (" build first |" if args.build else ""),
+             "|---|---|---|---|---|---|---|---|---|---|" + ("---|" if args.build else "")]
     for r in runs:
         def s(v: float | None) -> str:
             return "-" if v is None else f"{v:.2f} s"
         lines.append(f"| {r.run} | {r.exit} | {r.outcome} | {r.verified} | {s(r.survey_perceive_s)} | "
-                     f"{s(r.summary_s)} | {s(r.wall_s)} | {r.closer_looks} | {r.retakes} | {r.collisions} |")
+                     f"{s(r.summary_s)} | {s(r.wall_s)} | {r.closer_looks} | {r.retakes} | {r.collisions} |"
+                     + (f" {s(r.build_s)} |" if args.build else ""))
     failed = [r for r in runs if r.error]
     if failed:
         lines += ["", "Failed runs (their logs are in their directories, under the results' directory):", ""]
@@ -173,6 +187,7 @@ def run(args: argparse.Namespace) -> int:
     text = markdown(runs, args, command)
     (out / "mission.md").write_text(text, encoding="utf-8")
     (out / "mission.json").write_text(json.dumps({"command": command, "cold_cache": args.cold_cache,
+                                                  "build": args.build,
                                                   "runs": [asdict(r) for r in runs]}, indent=1) + "\n",
                                       encoding="utf-8")
     _print(f"wrote {out / 'mission.md'}, {out / 'mission.json'} (each run's outputs and logs in {out / 'mission-runs'})")
@@ -193,5 +208,8 @@ def add_parser(sub) -> None:
                    help="count the runs whose survey + perceive is within this (default 8, issue 8's target; 0: none)")
     p.add_argument("--cold-cache", action="store_true",
                    help="each run with an empty numba cache: a new machine's first run")
+    p.add_argument("--build", action="store_true",
+                   help="run `uav-robots build` before each run (into its empty cache with --cold-cache), timed "
+                        "apart: a new machine's first run after the one-time build")
     p.add_argument("--out", default="bench-out", help="directory for mission.md, mission.json and the runs' "
                                                       "outputs (default bench-out/)")
