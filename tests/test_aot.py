@@ -56,12 +56,13 @@ def _env(cache: Path | None, kernels: str | None = None) -> dict[str, str]:
 
 # Plans with every planner on a small warehouse in both connectivities, refines one plan (its
 # rounds depend on the clock: validated, not compared), and says which kernels the process used
-# and whether it imported numba.
+# and whether it imported numba. The kernels are loaded (or compiled) before the first plan.
 _PLANS = r"""
 import json, sys
 from scenarios import maps
-from uav_agent.planning.pipeline import plan_mission
+from uav_agent.planning.pipeline import plan_mission, warm_up
 from uav_agent.planning import jit
+warm_up()    # a JIT compile inside a plan's clock would cut LaCAM's time-bounded guided search short
 free = maps.warehouse(4, 6)
 out = {}
 for robots in (30, 200):         # LaCAM's guide paths alone, then its search (too dense for guides)

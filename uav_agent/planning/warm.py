@@ -24,6 +24,7 @@ import fcntl
 import hashlib
 import os
 import platform
+import re
 import signal
 import subprocess
 import sys
@@ -83,15 +84,18 @@ _NAME: list[str] = []
 
 
 def build_name() -> str:
-    """Names an ahead-of-time build (`aot.py`): the planning sources (numba's cache only
-    checks a kernel's own file), Python, NumPy and the CPU it was compiled for."""
+    """Names an ahead-of-time build (`aot.py`), and the sources numba's cache holds: every
+    module with kernels (numba's cache only checks a kernel's own file), Python, NumPy and the
+    CPU it was compiled for."""
     if _NAME:
         return _NAME[0]
     import numpy as np
     h = hashlib.sha256()
     for p in sorted(PACKAGE_DIR.glob("*.py")):
-        h.update(p.name.encode())
-        h.update(p.read_bytes())
+        source = p.read_bytes()
+        if p.name in ("jit.py", "clock.py") or re.search(rb"^from \.jit import njit", source, re.M):
+            h.update(p.name.encode())
+            h.update(source)
     h.update(f"{sys.version}|{np.__version__}|{platform.machine()}|{_cpu_flags()}".encode())
     _NAME.append(f"kernels_{h.hexdigest()[:16]}")
     return _NAME[0]
