@@ -1,19 +1,21 @@
-"""The planning kernels compiled ahead of time into one extension module (numba's pycc).
+"""The planning kernels compiled ahead of time into two extension modules (numba's pycc).
 
-`python -m uav_agent.planning.aot` builds it in two steps, each a process of its own:
+`uav-robots build` (`python -m uav_agent.planning.aot`) builds them in two steps, each in
+processes of their own:
 
 1. **record**: the planners run on tiny instances with the kernels interpreted
    (`jit.py`'s record mode), every planner, both connectivities, narrow and wide
    distance rows; each call of a kernel from Python notes its argument types;
 2. **compile**: numba's pycc compiles every recorded (kernel, argument types) pair, with
    the kernels they call inlined or linked in, into a shared library with the system's
-   C compiler, for this machine's CPU, releasing the GIL while a kernel runs.
+   C compiler, for this machine's CPU, releasing the GIL while a kernel runs: two
+   libraries (two kernel families) side by side on two cores.
 
-The library and its manifest (kernel -> argument kinds -> exported function) go to
-`jit.build_dir()` under the digest of the planning sources, Python, NumPy and the CPU,
-the manifest last: a process that finds both loads the kernels without numba; a changed
-source names another build. A machine without a C compiler keeps numba's JIT.
-`warm.py`'s background process builds it after it has filled numba's cache.
+The libraries and their manifest (kernel -> argument kinds -> exported function) go to
+`warm.build_dir()` under `warm.build_name()` (the kernel sources, Python, NumPy and the
+CPU), the manifest last: a process that finds it loads the kernels without numba; a
+changed source names another build. A machine without Linux, a C compiler or Python's
+headers keeps numba's JIT. Nothing builds by itself: `uav-robots build` is run once.
 """
 from __future__ import annotations
 
