@@ -89,11 +89,6 @@ def record(out: Path) -> None:
     out.write_bytes(pickle.dumps(jit.RECORDED))
 
 
-def _child_env(**extra: str) -> dict[str, str]:
-    root = str(Path(os.path.abspath(__file__)).parents[2])
-    return {**os.environ, **extra, "PYTHONPATH": os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))}
-
-
 # Two libraries, compiled side by side on two cores: each family with the kernels it links in
 SECOND_LIBRARY = ("uav_agent.planning.lacam.", "uav_agent.planning.pibt.", "uav_agent.planning.refine.")
 
@@ -166,7 +161,7 @@ def _work_dir(out_dir: Path) -> Path:
 def build(timeout: float = BUILD_TIMEOUT_S) -> Path:
     """Records, then compiles two libraries side by side, each step in child processes; writes
     the manifest last and returns its path."""
-    from .warm import build_dir, build_name
+    from .warm import build_dir, build_name, child_env
     name = build_name()
     out_dir = build_dir()
     tmp = _work_dir(out_dir)
@@ -174,7 +169,7 @@ def build(timeout: float = BUILD_TIMEOUT_S) -> Path:
         rec = tmp / "recorded.pkl"
         with open(tmp / "record.err", "w") as err:
             done = subprocess.run([sys.executable, "-m", "uav_agent.planning.aot", "--record", str(rec)],
-                                  env=_child_env(UAV_ROBOTS_KERNELS="record", NUMBA_DISABLE_JIT="1",
+                                  env=child_env(UAV_ROBOTS_KERNELS="record", NUMBA_DISABLE_JIT="1",
                                                  TMPDIR=str(tmp)),
                                   timeout=timeout, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err)
         if done.returncode != 0:
@@ -189,7 +184,7 @@ def build(timeout: float = BUILD_TIMEOUT_S) -> Path:
                 jobs.append(subprocess.Popen(
                     [sys.executable, "-m", "uav_agent.planning.aot", "--compile", str(tmp / f"part{i}.pkl"),
                      "--name", f"{name}_{i}", "--out", str(out_dir)],
-                    env=_child_env(UAV_ROBOTS_KERNELS="jit", TMPDIR=str(tmp)), stdin=subprocess.DEVNULL,
+                    env=child_env(UAV_ROBOTS_KERNELS="jit", TMPDIR=str(tmp)), stdin=subprocess.DEVNULL,
                     stdout=subprocess.DEVNULL, stderr=err))
         try:
             for i, job in enumerate(jobs):

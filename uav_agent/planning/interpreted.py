@@ -14,12 +14,10 @@ a planning error becomes exit 2 and its message on stderr.
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 import warnings
 from dataclasses import asdict
-from pathlib import Path
 
 import numpy as np
 
@@ -49,13 +47,12 @@ def plan_interpreted(free: np.ndarray, starts, goals, **options):
     way the caller can still plan with the compiled kernels."""
     from .pipeline import PlanResult
     from .validator import check
+    from .warm import child_env
     from .types import Problem
 
     request = {"free": ["".join("1" if c else "0" for c in row) for row in np.asarray(free, dtype=bool)],
                "starts": _cells(starts), "goals": _cells(goals), "options": options}
-    root = str(Path(os.path.abspath(__file__)).parents[2])
-    env = {**os.environ, "NUMBA_DISABLE_JIT": "1",
-           "PYTHONPATH": os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))}
+    env = child_env(NUMBA_DISABLE_JIT="1")
     timeout = float(options.get("time_limit", 60.0)) + START_MARGIN_S
     try:
         done = subprocess.run([sys.executable, "-m", "uav_agent.planning.interpreted"], input=json.dumps(request),

@@ -5,12 +5,10 @@ every result it returns has passed the independent validator.
 """
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
-from pathlib import Path as FsPath
 
 import numpy as np
 
@@ -196,14 +194,13 @@ def warm_up(planner: str = DEFAULT_PLANNER, connectivity: int = 4) -> float:
 
     from .jit import AHEAD_OF_TIME
     from .lacam import warm_up as warm_up_fast_planners
-    from .warm import cached
+    from .warm import cached, child_env
 
     t = time.perf_counter()
     aside = None
     if not AHEAD_OF_TIME and not cached("lacam", "_search"):
         code = "from uav_agent.planning.lacam import warm_up; warm_up(parts=('search', 'pibt'))"
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join(
-            filter(None, [str(FsPath(__file__).resolve().parents[2]), os.environ.get("PYTHONPATH")]))}
+        env = child_env()
         aside = subprocess.Popen([sys.executable, "-c", code], env=env, stdin=subprocess.DEVNULL,
                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=die_with_parent)
     try:

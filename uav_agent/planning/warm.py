@@ -46,6 +46,13 @@ MARKERS = (("distances", "_bfs_rows"), ("prioritized", "_plan_in_order"), ("laca
 NICE = 10
 
 
+def child_env(**extra: str) -> dict[str, str]:
+    """The environment of a Python child that imports this package (compiler, interpreted
+    planner, build): ours, `extra`, and the package's root first on its path."""
+    root = str(PACKAGE_DIR.parents[1])
+    return {**os.environ, **extra, "PYTHONPATH": os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))}
+
+
 def cache_dir() -> Path:
     """Where numba caches this package's kernels: its in-tree rule, or NUMBA_CACHE_DIR's."""
     given = os.environ.get("NUMBA_CACHE_DIR")
@@ -190,8 +197,7 @@ def start(planner: str | None = None, connectivity: int = 4) -> subprocess.Popen
     try:
         if not _try_lock(fd, wait=False):
             return None       # another process compiles them: its cache will do
-        root = str(PACKAGE_DIR.parents[1])
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))}
+        env = child_env()
 
         def child_setup() -> None:
             die_with_parent()
