@@ -373,6 +373,8 @@ def run(args: argparse.Namespace) -> int:
         "ticks, per tick: on a loaded machine the rate falls with the share of the cores the run gets, this less so.",
         "Bare barrier: the same number of processes, each answering every tick with one put; nothing decoded or "
         "judged: the transport's ceiling for this process count, measured in the same run.",
+        "Zenoh's runtimes (ZENOH_RUNTIME, the same in every process of the run): "
+        f"`{os.environ.get('ZENOH_RUNTIME') or 'Zenoh defaults'}`.",
         f"Machine: {os.cpu_count()} cores; load average (1/5/15 min) {load_before} before, {load_after} after.",
     ]
     text = _markdown(header, rows) + "\n\n" + "\n".join(f"- {n}" for n in notes) + "\n"
