@@ -20,12 +20,20 @@ from typing import Any, Callable
 from .errors import MissionError
 
 # Zenoh runs five Tokio runtimes per session (app, acc, tx, rx, net: six worker threads); every
-# message then crosses threads twice more on its way between the socket and Python. One runtime
-# of one worker for all of them (Zenoh's `handover`, read from ZENOH_RUNTIME when the first session
-# opens) cut the CPU of a lockstep tick of 50 robot processes by a quarter, and of the bare Zenoh
-# barrier too (`uav-robots bench ticks`, README). A user's own ZENOH_RUNTIME wins.
+# message then crosses threads twice more on its way between the socket and Python. For a process
+# that handles one robot's few small messages a tick, one runtime of one worker for all of them
+# (Zenoh's `handover`) cut the CPU of a lockstep tick of 50 robot processes by a fifth
+# (`uav-robots bench ticks`, README). Not for a busy process: there a callback that waits for the
+# GIL holds the only worker, keep-alives included (a pool of 250 robots lost its session while
+# the UAV's plans came in).
 ONE_RUNTIME = "(rx: (handover: app), acc: (handover: app), tx: (handover: app), net: (handover: app))"
-os.environ.setdefault("ZENOH_RUNTIME", ONE_RUNTIME)
+
+
+def lean_runtime() -> None:
+    """One Zenoh runtime for this process's sessions, unless the user set ZENOH_RUNTIME; only
+    before the process opens its first session (Zenoh reads the variable then)."""
+    os.environ.setdefault("ZENOH_RUNTIME", ONE_RUNTIME)
+
 
 Callback = Callable[[str, bytes], None]
 AliveCallback = Callable[[str, bool], None]

@@ -31,7 +31,7 @@ from protocol.log import Throttled
 from protocol.messages import (Done, MissionEnd, MoveAhead, MoveBatch, MoveBatchResult, MoveRequest, MoveResult,
                                MovesJudged, Plan, RobotState, StateBatch, Tick, decode, encode)
 from protocol.process import Lifecycle, command_main, one_command
-from protocol.transport import Transport, open_session
+from protocol.transport import Transport, lean_runtime, open_session
 
 from .faults import Fault, parse_fault
 from .robot import RobotMachine, Step
@@ -378,6 +378,8 @@ def robot_command(args: argparse.Namespace) -> int:
     life = Lifecycle()   # signals stop the pool even while the session is still opening
     life.stop_on_signals()
     stop = life.stop
+    if len(ids) == 1:
+        lean_runtime()
     with open_session(f"robots {format_ids(ids)}", args.listen, args.connect, args.zenoh_config, stop) as transport:
         def ready(pool: RobotPool) -> None:
             noun = "robot" if len(ids) == 1 else "robots"

@@ -261,7 +261,7 @@ def run_barrier(processes: int, ticks: int, tmp: Path) -> Measured:
 
 def echo_main(argv: list[str]) -> int:
     """One process of the bare barrier: answer every tick with one put."""
-    from protocol.transport import open_session
+    from protocol.transport import lean_runtime, open_session
 
     p = argparse.ArgumentParser(prog="python -m uav_robots.bench_ticks --echo")
     p.add_argument("--echo", action="store_true")
@@ -271,6 +271,7 @@ def echo_main(argv: list[str]) -> int:
     a = p.parse_args(argv)
     prefix = Keys(a.fleet).prefix
     stop = threading.Event()
+    lean_runtime()   # as a robot process hosting one robot
     with open_session(f"echo {a.name}", connect=[a.connect]) as t:
         ack = f"{prefix}/bench/ack/{a.name}"
         t.subscribe(f"{prefix}/bench/tick", lambda _k, payload: t.put(ack, payload))
@@ -373,8 +374,10 @@ def run(args: argparse.Namespace) -> int:
         "ticks, per tick: on a loaded machine the rate falls with the share of the cores the run gets, this less so.",
         "Bare barrier: the same number of processes, each answering every tick with one put; nothing decoded or "
         "judged: the transport's ceiling for this process count, measured in the same run.",
-        "Zenoh's runtimes (ZENOH_RUNTIME, the same in every process of the run): "
-        f"`{os.environ.get('ZENOH_RUNTIME') or 'Zenoh defaults'}`.",
+        ("Zenoh's runtimes: one (`protocol.transport.lean_runtime`) in each process hosting one robot and "
+         "each process of the bare barrier, Zenoh's own in the hub, the world and the pools."
+         if "ZENOH_RUNTIME" not in os.environ else
+         f"Zenoh's runtimes: ZENOH_RUNTIME=`{os.environ['ZENOH_RUNTIME']}` in every process of the run."),
         f"Machine: {os.cpu_count()} cores; load average (1/5/15 min) {load_before} before, {load_after} after.",
     ]
     text = _markdown(header, rows) + "\n\n" + "\n".join(f"- {n}" for n in notes) + "\n"
