@@ -219,3 +219,39 @@ def test_robot_cli_errors_are_one_line():
         run = subprocess.run([sys.executable, "-m", "robot_agents", *args], cwd=REPO, capture_output=True,
                              text=True, timeout=30)
         assert run.returncode == 2 and run.stderr.startswith("error:") and len(run.stderr.strip().splitlines()) == 1
+
+
+def _zenoh_threads(pid: int) -> set[str]:
+    """Names of the process's Zenoh runtime threads (Tokio names them app-0, rx-1, ...)."""
+    names = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            name = (task / "comm").read_text().strip()
+        except OSError:
+            continue   # a thread that just ended
+        if name.split("-")[0] in ("app", "acc", "tx", "rx", "net"):
+            names.add(name.split("-")[0])
+    return names
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads thread names from /proc")
+@pytest.mark.parametrize("ids, env, lean", [
+    ("0", {}, True),                           # one robot: one runtime of one worker
+    ("0-1", {}, False),                        # a pool keeps Zenoh's runtimes
+    ("0", {"ZENOH_RUNTIME": "()"}, False),     # the user's setting wins
+])
+def test_a_lone_robot_runs_one_zenoh_runtime(ids, env, lean):
+    import os
+
+    with Hub() as hub:
+        proc = subprocess.Popen([sys.executable, "-m", "robot_agents", "--ids", ids, "--fleet", hub.fleet,
+                                 "--connect", hub.endpoint], cwd=REPO, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, start_new_session=True,
+                                env={**{k: v for k, v in os.environ.items() if k != "ZENOH_RUNTIME"}, **env})
+        try:
+            assert "ready" in proc.stdout.readline()
+            threads = _zenoh_threads(proc.pid)
+            # a client has no acceptor; Zenoh's own runtimes include rx, tx and net beside app
+            assert (threads == {"app"}) if lean else ({"app", "tx", "rx", "net"} <= threads), threads
+        finally:
+            stop_process(proc)
