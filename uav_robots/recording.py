@@ -202,7 +202,12 @@ def read_mcap(path: Path) -> Recording:
     free = None
     rec = Recording(np.zeros((0, 0), bool))
     with open(path, "rb") as f:
-        for schema, channel, message in make_reader(f).iter_messages(log_time_order=True):
+        # mcap's own log-time order keeps a heap of Python objects (2 s of a 1,000-robot mission's
+        # 180,000 messages); a stable sort of the file's order gives the same order (ties keep
+        # their place in the file, as mcap breaks them) in a fraction of it.
+        messages = list(make_reader(f).iter_messages(log_time_order=False))
+        messages.sort(key=lambda m: m[2].log_time)
+        for schema, channel, message in messages:
             topic = channel.topic
             rec.counts[topic] = rec.counts.get(topic, 0) + 1
             if topic == "/uav/camera":
