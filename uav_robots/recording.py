@@ -79,8 +79,12 @@ def drawn(prefix: str, key: str) -> bool:
     return topic is not None and topic[0] in DRAWN_TOPICS
 
 
+def _free(rows: list[str]) -> np.ndarray:
+    return np.array([[c != "@" for c in r] for r in rows], bool)
+
+
 def _grid(rows: list[str], cell_m: float, ns: int) -> dict[str, Any]:
-    free = np.array([[c != "@" for c in r] for r in rows], np.uint8)
+    free = _free(rows).astype(np.uint8)
     h, w = free.shape
     return {"timestamp": _stamp(ns), "frame_id": "floor",
             "pose": {"position": {"x": 0.0, "y": -h * cell_m, "z": 0.0},
@@ -225,16 +229,8 @@ def read_mcap(path: Path) -> Recording:
             elif topic == "/map":
                 grid = np.frombuffer(base64.b64decode(body["data"]), np.uint8)
                 free = grid.reshape(-1, body["column_count"])[::-1].astype(bool)
-            elif topic == "/fleet/state":
-                rec.cells.setdefault(body["robot"], {})[body["tick"]] = tuple(body["cell"])
-                rec.ticks = max(rec.ticks, body["tick"])
-            elif topic == "/fleet/plan":
-                rec.goals[body["robot"]] = tuple(body["goal"])
-                rec.paths[body["robot"]] = [tuple(c) for c in body["path"]]
-                rec.starts.setdefault(body["robot"], tuple(body["path"][0]))
-            elif topic == "/fleet/tick":
-                rec.ticks = max(rec.ticks, body["k"])
-                rec.tick_times.append((message.log_time, body["k"]))
+            elif topic in DRAWN_TOPICS:
+                _take(rec, topic, body, message.log_time)
             elif topic == "/mission/status":
                 rec.phases.append((message.log_time, body["phase"]))
             elif topic == "/mission/event":
@@ -242,4 +238,43 @@ def read_mcap(path: Path) -> Recording:
     if free is None:
         raise ValueError(f"{path}: no /map channel: not a uav-robots recording")
     rec.free = free
+    return rec
+
+
+def _take(rec: Recording, topic: str, body: dict[str, Any], log_time: int) -> None:
+    """A drawn message (`DRAWN_TOPICS`) into `rec`."""
+    if topic == "/fleet/state":
+        rec.cells.setdefault(body["robot"], {})[body["tick"]] = tuple(body["cell"])
+        rec.ticks = max(rec.ticks, body["tick"])
+    elif topic == "/fleet/plan":
+        rec.goals[body["robot"]] = tuple(body["goal"])
+        rec.paths[body["robot"]] = [tuple(c) for c in body["path"]]
+        rec.starts.setdefault(body["robot"], tuple(body["path"][0]))
+    else:   # /fleet/tick
+        rec.ticks = max(rec.ticks, body["k"])
+        rec.tick_times.append((log_time, body["k"]))
+
+
+def drawn_recording(samples: Iterable[Sample], fleet_prefix: str, rows: list[str]) -> Recording:
+    """What `read_mcap` gives `replay.render` from `write_mcap` of `samples` on the map `rows`, without
+    writing and reading a file: the drawn messages only, the same skipped (those that do not decode)."""
+    rec = Recording(_free(rows))
+    for s in sorted(samples, key=lambda s: s.time_ns):
+        if s.key.startswith(fleet_prefix + "/robots/") and s.key.endswith("/states"):
+            try:
+                batch = decode(s.payload, StateBatch)
+            except Exception:  # noqa: BLE001 - as write_mcap: what does not decode is not recorded
+                continue
+            for st in batch.robot_states():
+                _take(rec, "/fleet/state", {"robot": st.robot, "tick": st.tick, "cell": st.cell}, s.time_ns)
+            continue
+        topic = _topic(fleet_prefix, s.key)
+        if topic is None or topic[0] not in DRAWN_TOPICS:
+            continue
+        try:
+            decode(s.payload, getattr(messages, topic[1]))
+            body = json.loads(s.payload.split(b"\0", 1)[0])
+        except Exception:  # noqa: BLE001 - as write_mcap and read_mcap
+            continue
+        _take(rec, topic[0], body, s.time_ns)
     return rec
