@@ -324,6 +324,10 @@ def _uav_patches() -> dict[str, Patch]:
             return None
 
     def believe(self):
+        # A believer waits for the claims: a robot's Done follows its last state, and may still be on
+        # its way when the last tick is over (the mutant then failed the liar for want of its Done).
+        with self.fleet.cv:
+            self.fleet.cv.wait_for(lambda: all(r in self.fleet.done for r in self.ids), timeout=3.0)
         self.verified = {r: r in self.fleet.done for r in self.ids}
 
     def both(*patches: Patch) -> Patch:
