@@ -48,6 +48,7 @@ def _record_workload() -> None:
     from .prioritized import guide_paths
     from .refine import improve, refine, trimmed
     from .registry import PLANNERS
+    from .scatter import routes
     from .types import Limits, Problem
 
     free = np.ones((7, 9), dtype=bool)
@@ -71,6 +72,7 @@ def _record_workload() -> None:
             found = guide_paths(inst, Limits(60.0), 10_000)
             buf, poff, plen, _ = found
             search(inst, Limits(60.0), guides=(buf, poff, plen))
+            search(inst, Limits(60.0), routes=routes(inst, 60.0)[:2])
             hist = search(inst, Limits(60.0))
             refine(inst, *trimmed(inst, hist), 0.05)
             improve(problem, [[(0, 0)] * 3 + [(1, 0)]] + [[s, s] for s in starts[1:]], 0.05)
@@ -90,7 +92,8 @@ def record(out: Path) -> None:
 
 
 # Two libraries, compiled side by side on two cores: each family with the kernels it links in
-SECOND_LIBRARY = ("uav_agent.planning.lacam.", "uav_agent.planning.pibt.", "uav_agent.planning.refine.")
+SECOND_LIBRARY = ("uav_agent.planning.lacam.", "uav_agent.planning.pibt.", "uav_agent.planning.refine.",
+                  "uav_agent.planning.scatter.")
 
 
 def compile_recorded(records: dict, out_dir: Path, name: str) -> dict[str, list]:

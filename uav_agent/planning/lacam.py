@@ -51,6 +51,8 @@ from .pibt import (
 from .prioritized import guide_paths, max_expansions, split_paths
 from .refine import refine, trimmed
 from .reservations import Paths
+from .scatter import routes
+from .sipp import hm_slot
 from .types import Limits, Path, Problem
 
 SEARCH_MEMORY = 1.0e9        # bytes LaCAM's search tables may take before it gives up
@@ -258,6 +260,15 @@ def _follow_guides(guides: Paths, goals, t: int, q_from, pref) -> None:
 
 
 @njit(cache=True, inline='always')
+def _follow_routes(keys, vals, q_from, pref) -> None:
+    """A robot standing on its scatter route (`scatter.py`) tries the route's next cell first."""
+    for i in range(q_from.shape[0]):
+        key = (np.int64(i) << np.int64(32)) | np.int64(q_from[i])
+        slot = hm_slot(keys, key)
+        pref[i] = vals[slot] if keys[slot] == key else -1
+
+
+@njit(cache=True, inline='always')
 def _history(hi: Configs, node: int) -> np.ndarray:
     """The configurations from the root to `node` [T, robots]."""
     length = 0
@@ -276,7 +287,7 @@ def _history(hi: Configs, node: int) -> np.ndarray:
 
 @njit(cache=True)
 def _search(g: Grid, prio0, swap: bool, deadline: float, seed: int, max_nodes: int, max_lnodes: int,
-            guides: Paths):
+            guides: Paths, route_keys, route_vals):
     """LaCAM's high-level search: (status, configurations from start to goal [T, n]).
 
     Guide paths (robot i: guides.length[i] 0 = none) steer PIBT: a robot that is where its
@@ -301,6 +312,7 @@ def _search(g: Grid, prio0, swap: bool, deadline: float, seed: int, max_nodes: i
     for i in range(na):
         if guides.length[i] > 0:
             guided = True
+    routed = route_keys.shape[0] > 1
     root = hi.size[0]
     _add_constraint(con, -1, -1, -1, 0)
     hi = _add_config(hi, g.starts, prio0, -1, 0, 0)
@@ -337,6 +349,8 @@ def _search(g: Grid, prio0, swap: bool, deadline: float, seed: int, max_nodes: i
         if ok:
             if guided:
                 _follow_guides(guides, g.goals, hi.depth[h], q_from, w.pref)
+            elif routed:
+                _follow_routes(route_keys, route_vals, q_from, w.pref)
             ok = pibt_step(g, w, q_from, q_to, order)
         for i in range(na):
             w.occ_now[q_from[i]] = -1
@@ -364,11 +378,12 @@ def _search(g: Grid, prio0, swap: bool, deadline: float, seed: int, max_nodes: i
 
 
 def search(inst: Instance, limits: Limits, memory: float = SEARCH_MEMORY, swap: bool = True,
-           guides: tuple | None = None) -> np.ndarray:
+           guides: tuple | None = None, routes: tuple | None = None) -> np.ndarray:
     """LaCAM's search alone: configurations [T, n] (compact ids) from the starts to the goals.
 
     `memory` bounds the bytes of the search's node tables (a PlanningError when reached);
-    `guides` = (flat paths, offsets, lengths) of cell ids, e.g. from `guide_paths`.
+    `guides` = (flat paths, offsets, lengths) of cell ids, e.g. from `guide_paths`;
+    `routes` = (keys, values) of scatter's next-cell map (`scatter.routes`).
     """
     # a configuration node: n cells (int32) and n priorities (float32) plus its bookkeeping;
     # a constraint node: five int32
@@ -379,8 +394,9 @@ def search(inst: Instance, limits: Limits, memory: float = SEARCH_MEMORY, swap: 
     buf, off, length = guides
     guide = Paths(np.asarray(buf, np.int32), np.asarray(off, np.int64), np.asarray(length, np.int64),
                   np.zeros(1, np.int64))
+    keys, vals = routes if routes is not None else (np.full(1, -1, np.int64), np.zeros(1, np.int32))
     status, hist = _search(grid_of(inst), initial_priorities(inst), swap, time.perf_counter() + limits.remaining(),
-                           int(inst.problem.seed), max_nodes, max_lnodes, guide)
+                           int(inst.problem.seed), max_nodes, max_lnodes, guide, keys, vals)
     if status == 1:
         raise PlanningError(f"lacam: no solution exists for these {inst.n} robots (every configuration explored)")
     if status == 2:
@@ -398,7 +414,10 @@ def search(inst: Instance, limits: Limits, memory: float = SEARCH_MEMORY, swap: 
 GUIDE_DENSITY = 0.075
 GUIDE_SHARE = 0.1              # at most this share of the time limit goes to the guide paths
 GUIDED_FACTOR = 2.0            # a guided LaCAM search gets this many times the guides' time ...
-GUIDED_MIN = 0.5               # ... but at least this many seconds, before LaCAM runs unguided
+GUIDED_MIN = 0.5               # ... but at least this many seconds, before LaCAM runs on scatter's routes
+# Scatter's routes settle within a second or two up to a thousand robots; 10,000 on
+# warehouse-20-40-10-2-2 take about 10 s a round: its share of the time limit keeps the search's.
+SCATTER_SHARE = 0.4
 
 
 def lacam(problem: Problem, limits: Limits) -> list[Path]:
@@ -406,10 +425,12 @@ def lacam(problem: Problem, limits: Limits) -> list[Path]:
 
     1. guide paths: one prioritized pass (with local repairs) when robots are sparse; when
        it routes every robot, that is the plan;
-    2. otherwise LaCAM, its PIBT steered by the guide paths of the robots that were routed
-       (unguided when too dense), which keeps LaCAM's completeness.
+    2. otherwise LaCAM, its PIBT steered by the guide paths of the robots that were routed,
+       or, when too dense for them (or they led nowhere), by scatter's routes (`scatter.py`);
+       either way LaCAM stays complete.
     The result depends only on the problem and its seed, not on the machine's speed (unless
-    a time budget runs out). `refine` can improve a LaCAM plan further, given time.
+    a time budget runs out: scatter's too, on a large crowded instance). `refine` can
+    improve a LaCAM plan further, given time.
     """
     inst = compile_problem(problem)
     if inst.n == 0:
@@ -429,7 +450,8 @@ def lacam(problem: Problem, limits: Limits) -> list[Path]:
             except PlanningError:
                 if limits.expired():
                     raise
-    return history_to_paths(inst, search(inst, limits))
+    found = routes(inst, SCATTER_SHARE * min(limits.seconds, limits.remaining()))
+    return history_to_paths(inst, search(inst, limits, routes=None if found is None else found[:2]))
 
 
 def warm_up(parts: tuple[str, ...] = ("guides", "search", "refine", "pibt")) -> float:
@@ -446,7 +468,7 @@ def warm_up(parts: tuple[str, ...] = ("guides", "search", "refine", "pibt")) -> 
         if "guides" in parts:
             guide_paths(inst, Limits(600.0), 1000)
         if "search" in parts or "refine" in parts:
-            buf, poff, plen = trimmed(inst, search(inst, Limits(600.0)))
+            buf, poff, plen = trimmed(inst, search(inst, Limits(600.0), routes=routes(inst, 600.0)[:2]))
             if "refine" in parts:
                 refine(inst, buf, poff, plen, 0.001)
         if "pibt" in parts:

@@ -38,7 +38,8 @@ PACKAGE_DIR = Path(os.path.abspath(__file__)).parent
 
 # One kernel per family `pipeline.warm_up` compiles: the cache is warm when each has an index
 # written after its source file last changed.
-MARKERS = (("distances", "_bfs_rows"), ("prioritized", "_plan_in_order"), ("lacam", "_search"), ("pibt", "_run"))
+MARKERS = (("distances", "_bfs_rows"), ("prioritized", "_plan_in_order"), ("lacam", "_search"), ("pibt", "_run"),
+           ("scatter", "_scatter"))
 
 # Below the mission, always: what it shares the cores with while the vehicle climbs and surveys
 # is the mission's own work (a fresh clone's 450 survey took 9.5-10.3 s beside a compile at the
