@@ -21,7 +21,7 @@ import numpy as np
 from .jit import njit
 
 from .distances import Instance
-from .grid_kernels import Grid, grid_of, grow, heap_pop, heap_push, now, shuffle
+from .grid_kernels import Grid, grid_of, grow, now, shuffle
 from .sipp import hm_new, hm_put
 
 MARGIN = 2                    # a route may be this many steps longer than the robot's shortest path
@@ -87,30 +87,40 @@ def _book(tb: Tables, nbr, buf, off: int, n: int, sign: int) -> int:
 
 
 @njit(cache=True)
-def _route(g: Grid, tb: Tables, a: int, bound: int, parent, used, hk, hn, nv, ng, nc, np_):
+def _route(g: Grid, tb: Tables, a: int, bound: int, parent, used, head, nxt, nv, ng, nc, np_):
     """Robot a's route with the fewest meetings, then the fewest steps, within `bound` steps:
     A* over cells (each closed once, so a route never waits or comes back), ordered by
     (meetings, f). Returns (route length, 0 if none; cells closed, listed in `used`; the
     search's arrays, grown). The caller reads the route back through `parent` from the goal,
-    then resets `parent` for the closed cells."""
+    then resets `parent` for the closed cells.
+
+    The open list is a bucket queue (`head`, all -1 between calls, and `nxt`): a key is
+    meetings x width + (f - the shortest distance), f takes only `width` values within the
+    bound, and a child's key is never below its parent's, so the lowest bucket only moves up."""
     nbr = g.nbr
     drow = g.dist[g.rows[a]]
     start = g.starts[a]
     goal = g.goals[a]
+    d = np.int64(drow[start])
+    width = bound - d + 1
     nodes = 1
     nv[0] = start
     ng[0] = 0
     nc[0] = 0
     np_[0] = -1
-    hk[0] = np.int64(drow[start])
-    hn[0] = 0
-    hsize = 1
+    nxt[0] = -1
+    head[0] = 0
+    lo = 0
+    hi = 0
     closed = 0
     found = -1
-    while hsize > 0:
-        node = hn[0]
-        heap_pop(hk, hn, hsize)
-        hsize -= 1
+    while True:
+        while lo <= hi and head[lo] < 0:
+            lo += 1
+        if lo > hi:
+            break
+        node = head[lo]
+        head[lo] = nxt[node]
         v = nv[node]
         if parent[v] != -2:
             continue
@@ -132,19 +142,25 @@ def _route(g: Grid, tb: Tables, a: int, bound: int, parent, used, hk, hn, nv, ng
                 ng = grow(ng, nodes + 1)
                 nc = grow(nc, nodes + 1)
                 np_ = grow(np_, nodes + 1)
-            if hsize + 1 > hk.shape[0]:
-                hk = grow(hk, hsize + 1)
-                hn = grow(hn, hsize + 1)
+                nxt = grow(nxt, nodes + 1)
             c = nc[node] + _meetings(tb, nbr, v, j, t)
+            b = c * width + (t + 1 + drow[u] - d)
+            if b >= head.shape[0]:
+                wider = np.full(max(b + 1, 2 * head.shape[0]), -1, dtype=np.int32)
+                wider[:head.shape[0]] = head
+                head = wider
             nv[nodes] = u
             ng[nodes] = t + 1
             nc[nodes] = c
             np_[nodes] = v
-            heap_push(hk, hn, hsize, (np.int64(c) << np.int64(24)) | np.int64(t + 1 + drow[u]), nodes)
-            hsize += 1
+            nxt[nodes] = head[b]
+            head[b] = nodes
+            hi = max(hi, b)
             nodes += 1
+    for b in range(lo, hi + 1):
+        head[b] = -1
     length = 0 if found < 0 else ng[found] + 1
-    return length, closed, hk, hn, nv, ng, nc, np_
+    return length, closed, head, nxt, nv, ng, nc, np_
 
 
 @njit(cache=True)
@@ -175,8 +191,8 @@ def _scatter(g: Grid, d0, margin: int, deadline: float, seed: int, max_rounds: i
     length = np.zeros(na, dtype=np.int64)
     parent = np.full(n, -2, dtype=np.int32)
     used = np.empty(n, dtype=np.int32)
-    hk = np.empty(1024, dtype=np.int64)
-    hn = np.empty(1024, dtype=np.int32)
+    head = np.full(1024, -1, dtype=np.int32)
+    nxt = np.empty(1024, dtype=np.int32)
     nv = np.empty(1024, dtype=np.int32)
     ng = np.empty(1024, dtype=np.int64)
     nc = np.empty(1024, dtype=np.int64)
@@ -198,7 +214,8 @@ def _scatter(g: Grid, d0, margin: int, deadline: float, seed: int, max_rounds: i
             a = order[ii]
             if length[a] > 0:
                 met -= _book(tb, g.nbr, buf, off[a], length[a], -1)
-            m, closed, hk, hn, nv, ng, nc, np_ = _route(g, tb, a, d0[a] + margin, parent, used, hk, hn, nv, ng, nc, np_)
+            m, closed, head, nxt, nv, ng, nc, np_ = _route(g, tb, a, d0[a] + margin, parent, used, head, nxt,
+                                                          nv, ng, nc, np_)
             if m > 0:
                 v = g.goals[a]
                 for t in range(m - 1, -1, -1):
