@@ -13,7 +13,8 @@ whenever one exists, given time.
 `lacam(problem, limits)` is the fast default: on sparse instances it first
 tries prioritized planning (near-optimal and cheap when robots rarely meet);
 if that leaves robots unrouted, LaCAM runs with the routed robots' paths as
-guides for PIBT. `refine` (`refine.py`) can improve a plan further; it is not
+guides for PIBT, and on a floor too crowded for that, with scatter's routes
+(`scatter.py`). `refine` (`refine.py`) can improve a plan further; it is not
 part of `lacam` because, measured on LaCAM's plans for crowded warehouses, it
 won under 1 % of the sum of costs for as much time again as the search.
 """
@@ -415,8 +416,8 @@ GUIDE_DENSITY = 0.075
 GUIDE_SHARE = 0.1              # at most this share of the time limit goes to the guide paths
 GUIDED_FACTOR = 2.0            # a guided LaCAM search gets this many times the guides' time ...
 GUIDED_MIN = 0.5               # ... but at least this many seconds, before LaCAM runs on scatter's routes
-# Scatter's routes settle within a second or two up to a thousand robots; 10,000 on
-# warehouse-20-40-10-2-2 take about 10 s a round: its share of the time limit keeps the search's.
+# Scatter's routes settle in about a second up to a thousand robots; 10,000 on
+# warehouse-20-40-10-2-2 take about 7 s a round: its share of the time limit keeps the search's.
 SCATTER_SHARE = 0.4
 
 
