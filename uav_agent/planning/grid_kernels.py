@@ -193,6 +193,12 @@ def _before(prio, a: int, b: int) -> bool:
 # ---- random numbers: two generators, because each planner's plans follow its own sequence ----
 
 @njit(cache=True)
+def seeded(seed: int) -> np.ndarray:
+    """A state for `rand_next`, from a seed."""
+    return np.array([np.uint64(seed) * np.uint64(2654435761) + np.uint64(1442695040888963407)], dtype=np.uint64)
+
+
+@njit(cache=True)
 def rand_next(state: np.ndarray) -> int:
     """xorshift64: a small reproducible generator for tie-breaking inside kernels."""
     x = state[0]

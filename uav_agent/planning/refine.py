@@ -28,6 +28,7 @@ from .grid_kernels import (
     new_visits,
     now,
     rand_next,
+    seeded,
     shuffle,
 )
 from .pibt import arrivals
@@ -183,7 +184,7 @@ def _refine(g: Grid, d0, paths: Paths, max_expand: int, deadline: float, target:
     for a in range(na):
         res = reserve(res, path_of(paths, a), a)
         soc += paths.length[a] - 1
-    rng = np.array([np.uint64(seed) * np.uint64(2654435761) + np.uint64(1442695040888963407)], dtype=np.uint64)
+    rng = seeded(seed)
     members = np.empty(group, dtype=np.int64)
     in_group = np.zeros(na, dtype=np.bool_)
     new = new_paths(group, 1024)

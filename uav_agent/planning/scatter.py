@@ -21,7 +21,7 @@ import numpy as np
 from .jit import njit
 
 from .distances import Instance
-from .grid_kernels import Grid, grid_of, grow, now, shuffle
+from .grid_kernels import Grid, grid_of, grow, now, seeded, shuffle
 from .sipp import hm_new, hm_put
 
 MARGIN = 2                    # a route may be this many steps longer than the robot's shortest path
@@ -198,7 +198,7 @@ def _scatter(g: Grid, d0, margin: int, deadline: float, seed: int, max_rounds: i
     nc = np.empty(1024, dtype=np.int64)
     np_ = np.empty(1024, dtype=np.int32)
     order = np.arange(na)
-    rng = np.array([np.uint64(seed) * np.uint64(2654435761) + np.uint64(1442695040888963407)], dtype=np.uint64)
+    rng = seeded(seed)
     met = 0
     last = np.int64(-1)
     rounds = 0
@@ -253,9 +253,7 @@ def routes(inst: Instance, seconds: float, margin: int = MARGIN, max_rounds: int
     horizon = int(d0.max(initial=0)) + margin + 2
     if 4.0 * horizon * g.nbr.shape[0] * (1 + g.nbr.shape[1]) > MAX_TABLE_BYTES:
         return None
-    t = time.perf_counter()
     buf, off, length, met, rounds = _scatter(g, d0, margin, time.perf_counter() + seconds, int(inst.problem.seed),
                                              max_rounds)
     keys, vals = _next_cells(buf, off, length)
-    return keys, vals, {"meetings": int(met), "rounds": int(rounds), "seconds": time.perf_counter() - t,
-                        "route_steps": int((np.maximum(length, 1) - 1).sum())}
+    return keys, vals, {"meetings": int(met), "rounds": int(rounds), "route_steps": int((np.maximum(length, 1) - 1).sum())}
