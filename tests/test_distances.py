@@ -104,6 +104,36 @@ def test_long_maze_switches_to_wide_rows():
     assert D.distance_field(free, (0, 0), 4)[end[1], end[0]] == 201 * 329 + 200 * 2
 
 
+@pytest.mark.parametrize("conn", [4, 8])
+def test_interpreted_rows_are_the_kernel_rows(conn):
+    """An interpreted process's distance rows (SciPy's Dijkstra) are the compiled kernel's, number for
+    number: a fresh clone's first plan is the plan of every later run."""
+    free = random_map(40, 30, 0.35, 3)       # walled-in pockets: unreachable cells too
+    graph = D.grid_graph(free, conn)
+    sources = np.arange(0, graph.n, 53, dtype=np.int32)
+    for dtype, sentinel in ((np.uint16, D.UNREACHABLE_16), (np.int32, D.UNREACHABLE_32)):
+        kernel, scipy = (np.empty((sources.size, graph.n), dtype=dtype) for _ in range(2))
+        far = graph.bfs_rows(sources, kernel, sentinel)
+        assert D._scipy_rows(graph.nbr, sources, scipy, sentinel) == far
+        np.testing.assert_array_equal(scipy, kernel)
+        assert (kernel == sentinel).any()
+
+
+@pytest.mark.parametrize("conn", [4, 8])
+def test_neighbour_table_lists_free_neighbours_in_order(conn):
+    free = random_map(17, 11, 0.4, 5)
+    graph = D.grid_graph(free, conn)
+    h, w = free.shape
+    for i in range(graph.n):
+        x, y = graph.cell_of(i)
+        want = []
+        for dx, dy in list(zip(D._DX, D._DY))[:conn]:
+            nx, ny = x + int(dx), y + int(dy)
+            if 0 <= nx < w and 0 <= ny < h and free[ny, nx] and (not (dx and dy) or (free[y, nx] and free[ny, x])):
+                want.append(graph.id_of((nx, ny)))
+        assert list(graph.nbr[i]) == want + [-1] * (conn - len(want))
+
+
 @pytest.mark.parametrize("goal, text", [((5, 0), "off the"), ((1, 1), "obstacle"), (("a", 0), "not an")])
 def test_bad_cells_are_one_line_errors(goal, text):
     free = np.ones((3, 3), bool)

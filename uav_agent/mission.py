@@ -603,7 +603,6 @@ class Mission:
         return {r: tuple(c) for r, c in model.robots.items()}
 
     def _plan(self, model):
-        from .planning.pipeline import plan_mission
         from .planning.registry import DEFAULT_PLANNER
 
         ids = sorted(model.robots)
@@ -612,17 +611,8 @@ class Mission:
         options = dict(planner=planner, assign=self.cfg.assign, connectivity=self.cfg.connectivity,
                        time_limit=self.cfg.time_limit_s, fallback=self.cfg.fallback, seed=self.cfg.seed)
         self._status("plan", message=f"{len(ids)} robots, planner {planner}, assignment {self.cfg.assign}")
-        result = None
-        if self._compiling and self._warm.is_alive():
-            result = self._plan_while_compiling(model, starts, options)
-        if result is None and self._warm.is_alive():
-            self.progress.phase("plan", "compiling the planners (first run on this machine only, ~30 s; "
-                                        "later runs load numba's cache; `uav-robots build` compiles them "
-                                        "ahead of time instead)")
         try:
-            if result is None:
-                self._warm.join()
-                result = plan_mission(model.free, starts, list(model.goals), **options)
+            result = self._plan_mission(model.free, starts, list(model.goals), **options)
         except PlanningError:
             from .perception.verdict import explain_unplannable
 
@@ -638,18 +628,36 @@ class Mission:
         self.clock.lap("plan")
         return result
 
-    def _plan_while_compiling(self, model, starts, options):
-        """The plan of a small instance by the same planners interpreted, while their kernels
-        still compile (a fresh clone's first run); None when the instance is too large for that
-        or the interpreted run failed: the caller then waits for the kernels."""
+    def _plan_mission(self, free, starts, goals, **options):
+        """`plan_mission`; on a fresh clone's first run, while the kernels still compile, the same
+        planners interpreted (a repair's plan too: planned in the UAV's process, the compile held
+        the fleet 48 s after a robot was lost), else once the compile is done."""
+        from .planning.pipeline import plan_mission
+
+        if self._compiling and self._warm.is_alive():
+            result = self._plan_while_compiling(free, starts, goals, options)
+            if result is not None:
+                return result
+            if self._warm.is_alive():
+                self.progress.phase("plan", "compiling the planners (first run on this machine only, ~30 s; "
+                                            "later runs load numba's cache; `uav-robots build` compiles them "
+                                            "ahead of time instead)")
+        self._warm.join()
+        return plan_mission(free, starts, goals, **options)
+
+    def _plan_while_compiling(self, free, starts, goals, options):
+        """The plan by the same planners interpreted, while their kernels still compile (a fresh
+        clone's first run): a few seconds for the missions `uav-robots run` flies (the 450x450
+        warehouse's 50 robots: 2.5 s, against half a minute's wait); None when the instance is
+        too large for that or the interpreted run failed: the caller then waits for the kernels."""
         from .planning.interpreted import fits, plan_interpreted
 
-        if not fits(model.free, len(starts), len(model.goals)):
+        if not fits(free, len(starts), len(goals)):
             return None
         self.progress.phase("plan", "the planners' kernels are still compiling (first run on this machine "
-                                    "only): planning this small instance with them interpreted")
+                                    "only): planning this instance with them interpreted")
         try:
-            result = plan_interpreted(model.free, starts, list(model.goals), **options)
+            result = plan_interpreted(free, starts, goals, **options)
             self._skip_warm.set()
             return result
         except (PlanningError, RuntimeError) as exc:
@@ -987,7 +995,7 @@ class Mission:
         try:
             rep = replan(self.model_free, list(self.model.goals), working, self.blocked,
                          planner=self.cfg.planner or DEFAULT_PLANNER, connectivity=self.cfg.connectivity,
-                         time_limit=self.cfg.time_limit_s, seed=self.cfg.seed)
+                         time_limit=self.cfg.time_limit_s, seed=self.cfg.seed, plan=self._plan_mission)
         except PlanningError as exc:
             # The mission's input was fine; what happened to its fleet ends it: a failed mission
             # (exit 1), not a bad input (exit 2), as the UAV alone used to say.

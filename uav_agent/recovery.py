@@ -7,6 +7,7 @@ obstacles; the remaining goals are assigned optimally among the working robots.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -29,8 +30,10 @@ def on_goal(seen: dict[int, Cell], goals: dict[int, Cell]) -> dict[int, bool]:
 
 
 def replan(free: np.ndarray, goals: list[Cell], working: dict[int, Cell], blocked: dict[int, Cell], *,
-           planner: str, connectivity: int, time_limit: float, seed: int = 0) -> Replan:
-    """Plan the `working` robots (id -> true cell) to the goals left, around the `blocked` robots' cells."""
+           planner: str, connectivity: int, time_limit: float, seed: int = 0,
+           plan: Callable[..., PlanResult] = plan_mission) -> Replan:
+    """Plan the `working` robots (id -> true cell) to the goals left, around the `blocked` robots' cells,
+    with `plan` (`plan_mission`'s signature)."""
     if not working:
         raise PlanningError("no robot is left working")
     free = free.copy()
@@ -43,7 +46,7 @@ def replan(free: np.ndarray, goals: list[Cell], working: dict[int, Cell], blocke
         # More working robots than goals to serve (goals lost under stopped robots): robots already
         # on an open goal keep it first, the others are planned to stay where they are.
         raise PlanningError(f"{len(ids)} working robots but only {len(open_goals)} goals they can reach")
-    result = plan_mission(free, [working[r] for r in ids], open_goals, planner=planner, assign="optimal",
-                          connectivity=connectivity, time_limit=time_limit, seed=seed)
+    result = plan(free, [working[r] for r in ids], open_goals, planner=planner, assign="optimal",
+                  connectivity=connectivity, time_limit=time_limit, seed=seed)
     taken = set(result.goals)
     return Replan(ids, result, [g for g in goals if tuple(g) not in taken])

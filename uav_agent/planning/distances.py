@@ -20,7 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-from .jit import njit
+from .jit import INTERPRETED, njit
 
 from protocol.errors import PlanningError
 
@@ -35,23 +35,25 @@ _DX = np.array([1, 0, -1, 0, 1, -1, -1, 1], dtype=np.int64)
 _DY = np.array([0, 1, 0, -1, 1, 1, -1, -1], dtype=np.int64)
 
 
-@njit(cache=True)
 def _build_neighbours(free: np.ndarray, index: np.ndarray, cells: np.ndarray, k: int) -> np.ndarray:
+    """int32 [n, k]: each free cell's free neighbours' compact ids in _DX/_DY's order, -1 padded
+    at the end. NumPy over all cells at once: one call per map."""
     h, w = free.shape
+    x, y = cells % w, cells // w
+    border = np.zeros((h + 2, w + 2), dtype=bool)
+    border[1:-1, 1:-1] = free
+    flat = border.ravel()
+    at = (y + 1) * (w + 2) + x + 1           # each cell in the bordered grid
     nbr = np.full((cells.shape[0], k), -1, dtype=np.int32)
-    for c in range(cells.shape[0]):
-        x = cells[c] % w
-        y = cells[c] // w
-        m = 0
-        for d in range(k):
-            nx = x + _DX[d]
-            ny = y + _DY[d]
-            if nx < 0 or ny < 0 or nx >= w or ny >= h or not free[ny, nx]:
-                continue
-            if d >= 4 and not (free[y, nx] and free[ny, x]):
-                continue  # no corner cutting
-            nbr[c, m] = index[ny * w + nx]
-            m += 1
+    filled = np.zeros(cells.shape[0], dtype=np.int64)
+    for d in range(k):
+        step = int(_DY[d]) * (w + 2) + int(_DX[d])
+        ok = flat[at + step]
+        if d >= 4:
+            ok &= flat[at + int(_DX[d])] & flat[at + int(_DY[d]) * (w + 2)]   # no corner cutting
+        rows = np.flatnonzero(ok)
+        nbr[rows, filled[rows]] = index[cells[rows] + int(_DY[d]) * w + int(_DX[d])]
+        filled[rows] += 1
     return nbr
 
 
@@ -78,6 +80,8 @@ class GridGraph:
     def bfs_rows(self, sources: np.ndarray, out: np.ndarray, sentinel: int) -> int:
         """BFS from every source into out's rows, on all cores; returns the largest distance."""
         sources = np.ascontiguousarray(sources, dtype=np.int32)
+        if INTERPRETED:
+            return _scipy_rows(self.nbr, sources, out, sentinel)
         base = self.base16 if out.dtype == np.uint16 else self.base
         args = (base, self.width + 2, self.connectivity == 8, self.padded, sources, out, sentinel)
         m = sources.size
@@ -228,6 +232,26 @@ def _bfs_rows(base: np.ndarray, pitch: int, diagonal: bool, padded: np.ndarray, 
             else:
                 row[v] = d
     return best
+
+
+def _scipy_rows(nbr: np.ndarray, sources: np.ndarray, out: np.ndarray, sentinel: int) -> int:
+    """`_bfs_rows`'s numbers by SciPy's compiled Dijkstra on unit steps, for a process whose
+    kernels run interpreted (a fresh clone's first plan, interpreted.py): 50 fields of the
+    450x450 warehouse in 1 s instead of 11 s."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    n = nbr.shape[0]
+    has = nbr >= 0
+    graph = csr_matrix((np.ones(int(has.sum()), dtype=np.float32),
+                        (np.repeat(np.arange(n, dtype=np.int32), has.sum(axis=1)), nbr[has])), shape=(n, n))
+    dist = dijkstra(graph, unweighted=True, indices=sources).reshape(len(sources), n)
+    dist[np.isinf(dist)] = -1.0
+    far = int(dist.max(initial=0.0))
+    dist[dist < 0] = sentinel
+    np.minimum(dist, sentinel, out=dist)
+    out[...] = dist
+    return far
 
 
 @dataclass(frozen=True, eq=False)

@@ -10,6 +10,8 @@ when the first kernel module is imported:
   Argument types the build has not seen fall back to numba's JIT for that kernel (logged).
 - **JIT**: `numba.njit`, with numba's on-disk cache (`warm.py` fills it on a fresh machine).
   `UAV_ROBOTS_KERNELS=jit` forces it.
+- **interpreted** (`NUMBA_DISABLE_JIT=1` alone; `interpreted.py`'s child on a fresh clone): the
+  kernels run as plain Python, but for the distance fields (SciPy, the same numbers).
 - **record** (`UAV_ROBOTS_KERNELS=record`, with `NUMBA_DISABLE_JIT=1`; `aot.py`'s own): the
   kernels run interpreted and every call from Python notes its argument types, which are
   the signatures the build compiles.
@@ -212,8 +214,12 @@ elif _BUILD is not None:
     monotonic = time.perf_counter        # the build calls clock.monotonic; the JIT swaps it in
     njit = _decorator(lambda f, options: Kernel(f, options, _BUILD.get(f"{f.__module__}.{f.__qualname__}", {})))
 else:
-    MODE = "jit"
     _numba = _enable_jit()
+    # NUMBA_DISABLE_JIT=1 (interpreted.py's child): the decorated kernels run as written
+    MODE = "interpreted" if _numba.config.DISABLE_JIT else "jit"
     njit = _numba.njit
 
 AHEAD_OF_TIME = MODE == "aot"
+# Interpreted, a kernel that visits every cell of a large grid takes seconds: the few that do
+# have a NumPy or SciPy twin that gives the same numbers (distances.py).
+INTERPRETED = MODE == "interpreted"
