@@ -80,12 +80,16 @@ _FALLBACK = r"""
 import json, sys
 import numpy as np
 from uav_agent.planning import jit
-from uav_agent.planning.distances import grid_graph
+from uav_agent.planning.distances import _bfs, grid_graph
 free = np.ones((5, 7), dtype=bool); free[2, 1:6] = False
 g = grid_graph(free, 4)
-from uav_agent.planning.distances import _build_neighbours
-c = _build_neighbours(free, g.index, g.cells, 4)
-f = _build_neighbours(np.asfortranarray(free), g.index, g.cells, 4)
+def field(dtype):
+    base = g.base.astype(dtype)
+    dist = np.empty_like(base)
+    _bfs(base, 9, False, int(g.padded[0]), dist, np.empty(g.n, dtype=np.int32), -1, -2, 1000)
+    return dist
+c = field(np.int32)
+f = field(np.int64)     # no planner calls it so
 print(json.dumps({"mode": jit.MODE, "same": bool((c == f).all()), "numba": "numba" in sys.modules}))
 """
 
@@ -124,7 +128,7 @@ def test_a_build_plans_without_numba_and_as_the_jit_does(build):
 def test_an_argument_the_build_never_saw_falls_back_to_numba(build):
     out, err = _run(_FALLBACK, _env(build))
     assert out == {"mode": "aot", "same": True, "numba": True}
-    assert "_build_neighbours has no ahead-of-time build for these argument types" in err
+    assert "_bfs has no ahead-of-time build for these argument types" in err
 
 
 @needs_compiler
