@@ -21,9 +21,13 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def run_cli(*argv: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PYTHONPATH=str(REPO))
-    return subprocess.run([sys.executable, "-m", "uav_robots", *argv], cwd=REPO, env=env,
-                          capture_output=True, text=True, timeout=timeout)
+    return run_cli_env({}, *argv, timeout=timeout)
+
+
+def run_cli_env(env: dict[str, str], *argv: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "uav_robots", *argv], cwd=REPO,
+                          env={**os.environ, "PYTHONPATH": str(REPO), **env}, capture_output=True, text=True,
+                          timeout=timeout)
 
 
 @pytest.fixture
@@ -44,6 +48,19 @@ def test_plan_subprocess_end_to_end(small_files):
     plan = read_plan(out)
     assert sorted(plan.starts) == sorted(pl.starts) and sorted(plan.goals) == sorted(pl.goals)
     assert plan.planner == "lacam" and np.array_equal(plan.free, free)
+
+
+def test_plan_on_a_fresh_clone_does_not_wait_for_the_compile(tmp_path):
+    """An empty numba cache (and so no build): the planners run interpreted and give the plan the
+    compiled kernels give, 50 robots on the 450 warehouse, without compiling first."""
+    cold = run_cli_env({"NUMBA_CACHE_DIR": str(tmp_path / "cold")}, "plan", "--map", "warehouse-450", "--robots", "50",
+                       "--out", str(tmp_path / "cold.json"))
+    assert cold.returncode == 0, cold.stderr[-2000:]
+    assert "planning with them interpreted" in cold.stdout and "compiling" not in cold.stdout
+    warm_run = run_cli("plan", "--map", "warehouse-450", "--robots", "50", "--out", str(tmp_path / "warm.json"))
+    assert warm_run.returncode == 0 and "interpreted" not in warm_run.stdout
+    a, b = read_plan(tmp_path / "cold.json"), read_plan(tmp_path / "warm.json")
+    assert a.paths == b.paths and a.metrics == b.metrics
 
 
 def test_plan_subprocess_bad_map_exits_2(tmp_path):
