@@ -13,7 +13,7 @@ import pytest
 from protocol.errors import PlanningError
 from scenarios.maps import NAMED, place, resolve_map, warehouse
 from uav_agent.planning import warm
-from uav_agent.planning.interpreted import fits, plan_interpreted
+from uav_agent.planning.interpreted import InterpretedPlanner, fits, plan_interpreted
 from uav_agent.planning.pipeline import plan_mission
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -76,6 +76,21 @@ def test_interpreted_planning_error_is_one_line():
     with pytest.raises(PlanningError) as interpreted:
         plan_interpreted(free, [(0, 0)], [(4, 0)], **kw)
     assert str(interpreted.value) == str(compiled.value) and "cannot reach" in str(compiled.value)
+
+
+def test_a_planner_started_ahead_plans_what_a_new_one_plans_and_an_unused_one_ends():
+    """The mission starts the interpreted child while the vehicle takes off: the same plan when the
+    instance comes, and no process left behind when none does."""
+    free, starts, goals = corridor()
+    kw = dict(planner="lacam", assign="none", connectivity=4, time_limit=30.0, fallback=True, seed=0)
+    ahead = InterpretedPlanner()
+    try:
+        assert ahead.plan(free, starts, goals, **kw).paths == plan_interpreted(free, starts, goals, **kw).paths
+    finally:
+        ahead.close()
+    unused = InterpretedPlanner()
+    unused.close()
+    assert unused._proc.returncode is not None
 
 
 def test_only_instances_that_plan_in_seconds_are_interpreted():

@@ -185,6 +185,7 @@ class Mission:
         self.model = None
         self.watch: VehicleWatch | None = None
         self.pose_feed: PoseFeed | None = None
+        self._interpreter = None                # interpreted.InterpretedPlanner started ahead on a fresh clone
         self._ended = False
 
     # ------------------------------------------------------------ helpers
@@ -314,6 +315,11 @@ class Mission:
             self.pose_feed = PoseFeed(self.flight, lambda p: self.transport.put(self.keys.uav_pose, encode(p)),
                                       t0=self.events.t0)
             self.clock.lap("connect")
+            if self._compiling:
+                from .planning.interpreted import InterpretedPlanner
+                # its interpreter and imports while the vehicle climbs (the link's set-up before
+                # took its CPU: the connection came 0.6 s later)
+                self._interpreter = InterpretedPlanner()
 
             self._fly_and_survey()
             model = self.model = self._perceive()
@@ -354,6 +360,8 @@ class Mission:
                 self.flight.close()
             if hasattr(self, "fleet"):
                 self.fleet.close()
+            if self._interpreter is not None:
+                self._interpreter.close()
             self.transport.close()
             self.progress.close()
 
@@ -650,20 +658,23 @@ class Mission:
         clone's first run): a few seconds for the missions `uav-robots run` flies (the 450x450
         warehouse's 50 robots: 2.5 s, against half a minute's wait); None when the instance is
         too large for that or the interpreted run failed: the caller then waits for the kernels."""
-        from .planning.interpreted import fits, plan_interpreted
+        from .planning.interpreted import InterpretedPlanner, fits
 
         if not fits(free, len(starts), len(goals)):
             return None
         self.progress.phase("plan", "the planners' kernels are still compiling (first run on this machine "
                                     "only): planning this instance with them interpreted")
+        planner, self._interpreter = self._interpreter or InterpretedPlanner(), None   # the one started ahead once
         try:
-            result = plan_interpreted(free, starts, goals, **options)
+            result = planner.plan(free, starts, goals, **options)
             self._skip_warm.set()
             return result
         except (PlanningError, RuntimeError) as exc:
             self.progress.phase("plan", f"interpreted planning failed ({str(exc).splitlines()[0]}); "
                                         "waiting for the compiled kernels")
             return None
+        finally:
+            planner.close()
 
     def _dispatch(self, plan: PlanState, first: bool = False) -> list[int]:
         """Check the plan, send it, wait for the acknowledgements; returns the robots that failed to take it."""

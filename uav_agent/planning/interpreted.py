@@ -15,6 +15,7 @@ a planning error becomes exit 2 and its message on stderr.
 """
 from __future__ import annotations
 
+import importlib
 import json
 import subprocess
 import sys
@@ -42,41 +43,73 @@ def _cells(cells) -> list[tuple[int, int]]:
     return [(int(c[0]), int(c[1])) for c in cells]
 
 
+class InterpretedPlanner:
+    """One interpreted plan in a child process, started ahead: its interpreter and imports (about a
+    second) then run while the caller still flies and surveys; `close` ends a child never used."""
+
+    def __init__(self) -> None:
+        from protocol.process import die_with_parent
+        from .warm import child_env
+
+        try:
+            self._proc: subprocess.Popen | None = subprocess.Popen(
+                [sys.executable, "-m", "uav_agent.planning.interpreted"], stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=child_env(NUMBA_DISABLE_JIT="1"),
+                preexec_fn=die_with_parent)
+        except OSError as exc:
+            self._proc, self._error = None, f"the interpreted planner did not start: {exc}"
+
+    def plan(self, free: np.ndarray, starts, goals, **options):
+        """`pipeline.plan_mission(free, starts, goals, **options)` in the child (once).
+
+        Raises PlanningError as plan_mission would (no plan, or the time limit reached at the
+        interpreter's pace), and RuntimeError when the child could not start or crashed: either
+        way the caller can still plan with the compiled kernels."""
+        from .pipeline import PlanResult
+        from .validator import check
+        from .types import Problem
+
+        if self._proc is None:
+            raise RuntimeError(self._error)
+        request = {"free": ["".join("1" if c else "0" for c in row) for row in np.asarray(free, dtype=bool)],
+                   "starts": _cells(starts), "goals": _cells(goals), "options": options}
+        timeout = float(options.get("time_limit", 60.0)) + START_MARGIN_S
+        try:
+            out, err = self._proc.communicate(json.dumps(request), timeout=timeout)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            self.close()
+            raise RuntimeError(f"the interpreted planner did not finish: {exc}") from None
+        if self._proc.returncode == 2:
+            raise PlanningError(err.strip().splitlines()[-1] if err.strip() else "planning failed")
+        if self._proc.returncode != 0:
+            raise RuntimeError(f"the interpreted planner exited with {self._proc.returncode}: {err.strip()[-500:]}")
+        d = json.loads(out)
+        result = PlanResult(**{**d, "starts": _cells(d["starts"]), "goals": _cells(d["goals"]),
+                               "paths": [_cells(p) for p in d["paths"]]})
+        # the child validated its plan; a plan that crossed a process boundary is checked again
+        check(Problem(free=np.asarray(free, dtype=bool), starts=result.starts, goals=result.goals,
+                      connectivity=result.connectivity), result.paths)
+        return result
+
+    def close(self) -> None:
+        if self._proc is not None and self._proc.poll() is None:
+            self._proc.kill()
+            self._proc.communicate()
+
+
 def plan_interpreted(free: np.ndarray, starts, goals, **options):
-    """`pipeline.plan_mission(free, starts, goals, **options)` in an interpreted child process.
-
-    Raises PlanningError as plan_mission would (no plan, or the time limit reached at the
-    interpreter's pace), and RuntimeError when the child could not start or crashed: either
-    way the caller can still plan with the compiled kernels."""
-    from .pipeline import PlanResult
-    from .validator import check
-    from .warm import child_env
-    from .types import Problem
-
-    request = {"free": ["".join("1" if c else "0" for c in row) for row in np.asarray(free, dtype=bool)],
-               "starts": _cells(starts), "goals": _cells(goals), "options": options}
-    env = child_env(NUMBA_DISABLE_JIT="1")
-    timeout = float(options.get("time_limit", 60.0)) + START_MARGIN_S
+    """`InterpretedPlanner().plan(...)`, the child started now."""
+    planner = InterpretedPlanner()
     try:
-        done = subprocess.run([sys.executable, "-m", "uav_agent.planning.interpreted"], input=json.dumps(request),
-                              capture_output=True, text=True, env=env, timeout=timeout)
-    except (OSError, subprocess.TimeoutExpired) as exc:
-        raise RuntimeError(f"the interpreted planner did not finish: {exc}") from None
-    if done.returncode == 2:
-        raise PlanningError(done.stderr.strip().splitlines()[-1] if done.stderr.strip() else "planning failed")
-    if done.returncode != 0:
-        raise RuntimeError(f"the interpreted planner exited with {done.returncode}: {done.stderr.strip()[-500:]}")
-    d = json.loads(done.stdout)
-    result = PlanResult(**{**d, "starts": _cells(d["starts"]), "goals": _cells(d["goals"]),
-                           "paths": [_cells(p) for p in d["paths"]]})
-    # the child validated its plan; a plan that crossed a process boundary is checked again
-    check(Problem(free=np.asarray(free, dtype=bool), starts=result.starts, goals=result.goals,
-                  connectivity=result.connectivity), result.paths)
-    return result
+        return planner.plan(free, starts, goals, **options)
+    finally:
+        planner.close()
 
 
 def main() -> int:
     from .pipeline import plan_mission
+
+    importlib.import_module("scipy.optimize")   # the assignment's, half a second: before the instance arrives
 
     request = json.load(sys.stdin)
     free = np.array([[c == "1" for c in row] for row in request["free"]], dtype=bool)
