@@ -149,6 +149,14 @@ def test_a_changed_source_empties_numba_cache_once(tmp_path, monkeypatch):
     assert list(d.glob("distances.*.nbi"))
 
 
+def test_every_module_with_kernels_names_the_build():
+    """A build (and numba's cache stamp) is named after every module that defines kernels: one
+    left out would keep an old build's code after an edit of it (distances.py went missing once its
+    import line named more than `njit`)."""
+    with_kernels = {p.name for p in warm.PACKAGE_DIR.glob("*.py") if "@njit(" in p.read_text()}
+    assert with_kernels and with_kernels <= {p.name for p in warm.kernel_sources()}
+
+
 def test_warm_needs_every_marker_newer_than_its_source(tmp_path, monkeypatch):
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
     d = warm.cache_dir()

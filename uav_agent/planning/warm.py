@@ -91,6 +91,13 @@ def _cpu_flags() -> str:
 _NAME: list[str] = []
 
 
+def kernel_sources() -> list[Path]:
+    """The modules a build or numba's cache is compiled from: every one that imports the kernels'
+    decorator, and the decorator's and the clock's own."""
+    return [p for p in sorted(PACKAGE_DIR.glob("*.py"))
+            if p.name in ("jit.py", "clock.py") or re.search(rb"^from \.jit import [^\n]*\bnjit\b", p.read_bytes(), re.M)]
+
+
 def build_name() -> str:
     """Names an ahead-of-time build (`aot.py`), and the sources numba's cache holds: every
     module with kernels (numba's cache only checks a kernel's own file), Python, NumPy and the
@@ -99,11 +106,9 @@ def build_name() -> str:
         return _NAME[0]
     import numpy as np
     h = hashlib.sha256()
-    for p in sorted(PACKAGE_DIR.glob("*.py")):
-        source = p.read_bytes()
-        if p.name in ("jit.py", "clock.py") or re.search(rb"^from \.jit import njit", source, re.M):
-            h.update(p.name.encode())
-            h.update(source)
+    for p in kernel_sources():
+        h.update(p.name.encode())
+        h.update(p.read_bytes())
     h.update(f"{sys.version}|{np.__version__}|{platform.machine()}|{_cpu_flags()}".encode())
     _NAME.append(f"kernels_{h.hexdigest()[:16]}")
     return _NAME[0]
