@@ -21,5 +21,9 @@ class PlanningError(UavRobotsError):
     """No valid plan: unreachable goal, unknown planner, time limit hit, incomplete method."""
 
 
+class PlanningTimeout(PlanningError):
+    """The time limit ran out before a plan was found: a faster run of the same planner may find one."""
+
+
 class MissionError(UavRobotsError):
     """The mission cannot go on: a process died, a robot was lost, the vehicle refused."""

@@ -78,6 +78,16 @@ def test_interpreted_planning_error_is_one_line():
     assert str(interpreted.value) == str(compiled.value) and "cannot reach" in str(compiled.value)
 
 
+def test_the_time_limit_reached_interpreted_is_left_to_the_compiled_kernels():
+    """Not a planning error: the compiled kernels may well plan it in time (the mission and
+    `uav-robots plan` then wait for them)."""
+    _, free = resolve_map("warehouse-450", 0)
+    pl = place(free, 50, 0)
+    with pytest.raises(RuntimeError, match="time limit of 0.2 s reached"):
+        plan_interpreted(free, pl.starts, pl.goals, planner="lacam", assign="optimal", connectivity=4,
+                         time_limit=0.2, fallback=True, seed=0)
+
+
 def test_a_planner_started_ahead_plans_what_a_new_one_plans_and_an_unused_one_ends():
     """The mission starts the interpreted child while the vehicle takes off: the same plan when the
     instance comes, and no process left behind when none does."""

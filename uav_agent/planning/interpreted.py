@@ -11,7 +11,8 @@ the breadth-first distance fields, runs as SciPy's compiled Dijkstra instead, wi
 numbers (`distances._scipy_rows`): interpreted, 50 fields of the 450x450 warehouse took 11 s.
 
 The child reads the instance as JSON on stdin and writes the PlanResult as JSON on stdout;
-a planning error becomes exit 2 and its message on stderr.
+a planning error becomes exit 2 and its message on stderr, the time limit reached exit 3 (the
+compiled kernels may still plan it in time).
 """
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ from dataclasses import asdict
 
 import numpy as np
 
-from protocol.errors import PlanningError
+from protocol.errors import PlanningError, PlanningTimeout
 
 # Every goal needs a full distance field, about 0.15 us a cell in SciPy (goals x free cells:
 # 50 x 126,784 on the 450x450 warehouse, 1 s); the searches, interpreted, grow with the robots
@@ -62,9 +63,9 @@ class InterpretedPlanner:
     def plan(self, free: np.ndarray, starts, goals, **options):
         """`pipeline.plan_mission(free, starts, goals, **options)` in the child (once).
 
-        Raises PlanningError as plan_mission would (no plan, or the time limit reached at the
-        interpreter's pace), and RuntimeError when the child could not start or crashed: either
-        way the caller can still plan with the compiled kernels."""
+        Raises PlanningError as plan_mission would, and RuntimeError when the child could not
+        start, crashed or reached the time limit at the interpreter's pace: then the caller can
+        still plan with the compiled kernels."""
         from .pipeline import PlanResult
         from .validator import check
         from .types import Problem
@@ -79,8 +80,11 @@ class InterpretedPlanner:
         except (OSError, subprocess.TimeoutExpired) as exc:
             self.close()
             raise RuntimeError(f"the interpreted planner did not finish: {exc}") from None
+        why = err.strip().splitlines()[-1] if err.strip() else "planning failed"
         if self._proc.returncode == 2:
-            raise PlanningError(err.strip().splitlines()[-1] if err.strip() else "planning failed")
+            raise PlanningError(why)
+        if self._proc.returncode == 3:
+            raise RuntimeError(f"interpreted, {why}")
         if self._proc.returncode != 0:
             raise RuntimeError(f"the interpreted planner exited with {self._proc.returncode}: {err.strip()[-500:]}")
         d = json.loads(out)
@@ -120,7 +124,7 @@ def main() -> int:
             result = plan_mission(free, _cells(request["starts"]), _cells(request["goals"]), **request["options"])
     except PlanningError as exc:
         print(str(exc).replace("\n", " "), file=sys.stderr)
-        return 2
+        return 3 if isinstance(exc, PlanningTimeout) else 2
     json.dump(asdict(result), sys.stdout)
     return 0
 

@@ -26,7 +26,7 @@ from typing import NamedTuple
 import numpy as np
 from .jit import njit
 
-from protocol.errors import PlanningError
+from protocol.errors import PlanningError, PlanningTimeout
 
 from .distances import Instance, compile_problem
 from .grid_kernels import (
@@ -401,7 +401,7 @@ def search(inst: Instance, limits: Limits, memory: float = SEARCH_MEMORY, swap: 
     if status == 1:
         raise PlanningError(f"lacam: no solution exists for these {inst.n} robots (every configuration explored)")
     if status == 2:
-        raise PlanningError(f"lacam: time limit of {limits.seconds:g} s reached without a plan for {inst.n} robots")
+        raise PlanningTimeout(f"lacam: time limit of {limits.seconds:g} s reached without a plan for {inst.n} robots")
     if status == 3:
         raise PlanningError(f"lacam: search memory of {memory / 1e6:.0f} MB used up without a plan "
                             f"for {inst.n} robots")

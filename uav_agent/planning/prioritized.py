@@ -35,7 +35,7 @@ import time
 import numpy as np
 from .jit import njit
 
-from protocol.errors import PlanningError
+from protocol.errors import PlanningError, PlanningTimeout
 
 from .distances import Instance, compile_problem
 from .grid_kernels import Grid, Visits, begin_visits, downhill, grid_of, new_visits, now
@@ -234,7 +234,7 @@ def prioritized(problem: Problem, limits: Limits) -> list[Path]:
     ok, buf, poff, plen, tries, failed = plan_prioritized(inst, limits)
     if not ok:
         if limits.expired():
-            raise PlanningError(f"prioritized planning: time limit of {limits.seconds:g} s reached after "
+            raise PlanningTimeout(f"prioritized planning: time limit of {limits.seconds:g} s reached after "
                                 f"{tries} priority orders")
         raise PlanningError(f"prioritized planning: no conflict-free priority order in {tries} tries "
                             f"(robot {failed} from {tuple(problem.starts[failed])} stays blocked)")

@@ -16,7 +16,7 @@ from typing import Callable
 
 import numpy as np
 
-from protocol.errors import PlanningError
+from protocol.errors import PlanningTimeout
 from protocol.grid import Cell
 
 Path = list[Cell]
@@ -49,7 +49,7 @@ class Limits:
 
     def check(self, what: str) -> None:
         if self.expired():
-            raise PlanningError(f"{what}: time limit of {self.seconds:g} s reached without a plan")
+            raise PlanningTimeout(f"{what}: time limit of {self.seconds:g} s reached without a plan")
 
 
 Planner = Callable[[Problem, Limits], list[Path]]
