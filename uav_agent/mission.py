@@ -656,15 +656,18 @@ class Mission:
     def _plan_while_compiling(self, free, starts, goals, options):
         """The plan by the same planners interpreted, while their kernels still compile (a fresh
         clone's first run): a few seconds for the missions `uav-robots run` flies (the 450x450
-        warehouse's 50 robots: 2.5 s, against half a minute's wait); None when the instance is
+        warehouse's 50 robots: about 2 s, against half a minute's wait); None when the instance is
         too large for that or the interpreted run failed: the caller then waits for the kernels."""
         from .planning.interpreted import InterpretedPlanner, fits
 
+        ahead, self._interpreter = self._interpreter, None   # the child started at takeoff serves once
         if not fits(free, len(starts), len(goals)):
+            if ahead is not None:
+                ahead.close()
             return None
         self.progress.phase("plan", "the planners' kernels are still compiling (first run on this machine "
                                     "only): planning this instance with them interpreted")
-        planner, self._interpreter = self._interpreter or InterpretedPlanner(), None   # the one started ahead once
+        planner = ahead or InterpretedPlanner()
         try:
             result = planner.plan(free, starts, goals, **options)
             self._skip_warm.set()
