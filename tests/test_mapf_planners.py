@@ -23,7 +23,7 @@ from scenarios.maps import place, random_map
 from uav_agent.planning.distances import compile_problem
 from uav_agent.planning.lacam import lacam, refine, search, trimmed, warm_up
 from uav_agent.planning.pibt import history_to_paths, pibt
-from uav_agent.planning.prioritized import guide_paths, prioritized, split_paths
+from uav_agent.planning.prioritized import guide_paths, max_expansions, prioritized, split_paths
 from uav_agent.planning.types import Limits, Problem, sum_of_costs
 from uav_agent.planning.validator import check
 
@@ -272,3 +272,16 @@ def test_lacam_with_partial_guides_stays_valid():
     assert not complete and (plen == 0).any() and (plen > 0).any()
     hist = search(inst, Limits(30), guides=(buf, poff, plen))
     check(problem, history_to_paths(inst, hist))
+
+
+def test_lacam_tries_the_robots_left_unrouted_first_before_guiding_pibt():
+    # The shortest-first pass leaves two of these 400 robots unrouted; with them first, prioritized
+    # planning routes everyone (1.12 x the lower bound), where LaCAM guided by the first pass
+    # paid 1.31.
+    problem = _scen_problem(read_map(movingai_map(W10)), movingai_scen(W10, "random-2"), 400)
+    inst = compile_problem(problem)
+    buf, poff, plen, complete = guide_paths(inst, Limits(30), max_expansions(inst))
+    assert not complete
+    paths = lacam(problem, Limits(60))
+    check(problem, paths)
+    assert sum_of_costs(paths, problem.goals) <= 1.15 * inst.lower_bound()

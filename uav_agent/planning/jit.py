@@ -10,7 +10,7 @@ when the first kernel module is imported:
   Argument types the build has not seen fall back to numba's JIT for that kernel (logged).
 - **JIT**: `numba.njit`, with numba's on-disk cache (`warm.py` fills it on a fresh machine).
   `UAV_ROBOTS_KERNELS=jit` forces it.
-- **interpreted** (`NUMBA_DISABLE_JIT=1` alone; `interpreted.py`'s child on a fresh clone): the
+- **interpreted** (`NUMBA_DISABLE_JIT=1`, with or without a build; `interpreted.py`'s child): the
   kernels run as plain Python, but for the distance fields (SciPy, the same numbers).
 - **record** (`UAV_ROBOTS_KERNELS=record`, with `NUMBA_DISABLE_JIT=1`; `aot.py`'s own): the
   kernels run interpreted and every call from Python notes its argument types, which are
@@ -204,7 +204,10 @@ def _decorator(make: Callable[[Callable, dict], Any]):
 
 
 MODE = os.environ.get(MODE_ENV, "")
-_BUILD = None if MODE in ("jit", "record") else _load_build()
+# numba's own switch wins over a build: `interpreted.py`'s child is asked for plain Python (a
+# build's plan there would not show what a fresh clone's first run does), and so is a user who sets it
+_DISABLED = os.environ.get("NUMBA_DISABLE_JIT", "0").strip() not in ("", "0")
+_BUILD = None if MODE in ("jit", "record") or _DISABLED else _load_build()
 monotonic: Callable[[], float]
 if MODE == "record":
     monotonic = time.perf_counter

@@ -246,16 +246,25 @@ def _shortest_first(inst: Instance, rng: np.random.Generator) -> np.ndarray:
     return np.lexsort((rng.random(inst.n), inst.start_distances())).astype(np.int64)
 
 
-def plan_prioritized(inst: Instance, limits: Limits, max_tries: int | None = None):
+def first_then_shortest(inst: Instance, first: np.ndarray) -> np.ndarray:
+    """The shortest-first order with the robots `first` moved to its front (in that order)."""
+    order = _shortest_first(inst, np.random.default_rng(inst.problem.seed))
+    first = np.asarray(first, dtype=np.int64)
+    return np.concatenate((first, order[~np.isin(order, first)])).astype(np.int64)
+
+
+def plan_prioritized(inst: Instance, limits: Limits, max_tries: int | None = None, order: np.ndarray | None = None):
     """Restarts until an order works: (ok, flat paths, offsets, lengths, tries, last failed robot).
 
     Gives up after `max_tries` orders (default: MAX_TRIES, or every order of a handful of robots).
+    `order` is the first order tried (default: shortest first).
     """
     if max_tries is None:
         max_tries = min(MAX_TRIES, math.factorial(min(inst.n, 8)))
     g = grid_of(inst)
     rng = np.random.default_rng(inst.problem.seed)
-    order = _shortest_first(inst, rng)
+    if order is None:
+        order = _shortest_first(inst, rng)
     failed = -1
     tries = 0
     cap = max_expansions(inst)
