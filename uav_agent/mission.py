@@ -13,6 +13,7 @@ import os
 import secrets
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -303,6 +304,15 @@ class Mission:
             self.info = info
             from .perception import Landmarks
             self.landmarks = Landmarks.from_info(info)
+            self._camera = self._capture(calibration_only=True)   # the camera's intrinsics and lens
+            self.frames.clear()
+            # The survey's image border needs the lens's full-frame undistortion maps (0.4 s at
+            # 12 MP, which the first image's perception then reuses): worked out while the
+            # autopilot link comes up, not between arming and the take-off.
+            lens = ThreadPoolExecutor(1, thread_name_prefix="lens-border")
+            self._survey_border = lens.submit(self._border, self._camera, self.cfg.min_px_per_cell,
+                                              self.info.cell_size_m)
+            lens.shutdown(wait=False)
             from .planning.warm import is_warm
             self._compiling = not is_warm()   # a fresh clone: the kernels compile during the flight
             self._skip_warm = threading.Event()
@@ -399,11 +409,10 @@ class Mission:
         self._status("takeoff", message=f"arming and climbing over MAVLink ({self.cfg.mavlink_url})")
         self.flight.arm()
         self.uav["armed"] = True
-        first = self._camera = self._capture(calibration_only=True)  # the camera's intrinsics and lens
-        self.frames.clear()
+        first = self._camera
         poses = self._poses = survey_poses(self.info.width, self.info.height, self.info.cell_size_m, first,
                                            min_px_per_cell=self.cfg.min_px_per_cell,
-                                           border_px=self._border(first, self.cfg.min_px_per_cell, self.info.cell_size_m))
+                                           border_px=self._survey_border.result())
         self.pose_feed.flying(True)
         # A take-off climbs straight up (PX4's does); the rest of the climb is flown on the way to
         # the first pose, the vehicle climbing and crossing at once.
