@@ -153,3 +153,13 @@ def test_a_machine_without_a_compiler_is_told_in_one_line(tmp_path):
     assert done.stderr.strip() == ("error: the ahead-of-time build needs a C compiler (`cc`); "
                                    "the planners keep numba's JIT")
     assert not list(tmp_path.glob("*/aot/kernels_*"))
+
+
+@needs_compiler
+def test_numbas_own_switch_runs_the_kernels_interpreted_beside_a_build(build):
+    # interpreted.py's child asks for plain Python with NUMBA_DISABLE_JIT=1: a build there would
+    # plan in milliseconds what a fresh clone's first run plans interpreted
+    env = {**_env(build), "NUMBA_DISABLE_JIT": "1"}
+    out, _ = _run("import json, sys; from uav_agent.planning import jit; "
+                  "print(json.dumps({'mode': jit.MODE, 'interpreted': jit.INTERPRETED}))", env)
+    assert out == {"mode": "interpreted", "interpreted": True}

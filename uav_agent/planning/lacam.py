@@ -12,11 +12,12 @@ whenever one exists, given time.
 
 `lacam(problem, limits)` is the fast default: on sparse instances it first
 tries prioritized planning (near-optimal and cheap when robots rarely meet),
-in a few orders if the first leaves robots unrouted; if none routes them all, LaCAM runs with the routed robots' paths as
-guides for PIBT, and on a floor too crowded for that, with scatter's routes
-(`scatter.py`). `refine` (`refine.py`) can improve a plan further; it is not
-part of `lacam` because, measured on LaCAM's plans for crowded warehouses, it
-won under 1 % of the sum of costs for as much time again as the search.
+in a few orders if the first leaves robots unrouted; if none routes them all,
+LaCAM runs with the first pass's paths as guides for PIBT, and on a floor too
+crowded for that, with scatter's routes (`scatter.py`). `refine` (`refine.py`)
+can improve a plan further; it is not part of `lacam` because, measured on
+LaCAM's plans for crowded warehouses, it won under 1 % of the sum of costs for
+as much time again as the search.
 """
 from __future__ import annotations
 
@@ -416,7 +417,7 @@ GUIDE_DENSITY = 0.075
 GUIDE_SHARE = 0.1              # at most this share of the time limit goes to the guide paths
 # A pass that leaves robots unrouted is tried again with them first, a few orders at most:
 # where that routes everyone, its plan costs less than LaCAM's guided by the first pass (on
-# the crowded MovingAI floors 0.3-13 % less, 1.12 against 1.31 SoC/LB at worst).
+# the crowded MovingAI floors 0.3-14 % less, 1.12 against 1.31 SoC/LB at worst).
 RETRY_ORDERS = 8
 RETRY_FACTOR = 2.0             # ... within this many times the first pass's time, GUIDED_MIN at least
 GUIDED_FACTOR = 2.0            # a guided LaCAM search gets this many times the guides' time ...
