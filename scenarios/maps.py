@@ -87,12 +87,19 @@ def _params(text: str, spec: str) -> dict[str, float]:
     return out
 
 
+# The MovingAI maps that ship with the package (scenarios/data/movingai/NAME/NAME.map), by name.
+MOVINGAI = Path(__file__).resolve().parent / "data" / "movingai"
+
+
 def resolve_map(spec: str, seed: int = 0) -> tuple[str, np.ndarray]:
     """A `--map` value -> (name, free[y, x])."""
     if spec.endswith(".map") or Path(spec).is_file():
         return Path(spec).stem, read_map(spec)
     if spec in NAMED:
         return spec, warehouse(**NAMED[spec])
+    shipped = MOVINGAI / spec / f"{spec}.map"
+    if "/" not in spec and spec not in ("", ".", "..") and shipped.is_file():
+        return spec, read_map(shipped)
     kind, _, rest = spec.partition(":")
     p = _params(rest, spec)
     try:
@@ -103,7 +110,8 @@ def resolve_map(spec: str, seed: int = 0) -> tuple[str, np.ndarray]:
                                     float(p.get("density", 0.2)), int(p.get("seed", seed)))
     except TypeError as exc:
         raise MapError(f"map spec {spec!r}: {exc}") from None
-    raise MapError(f"unknown map {spec!r}: give a .map file, {', '.join(NAMED)}, "
+    raise MapError(f"unknown map {spec!r}: give a .map file, {', '.join(NAMED)}, a MovingAI map that ships "
+                   "(warehouse-10-20-10-2-1, room-64-64-8, ...: scenarios/data/movingai), "
                    "'warehouse:blocks_x=..,blocks_y=..' or 'random:width=..,height=..,density=..'")
 
 

@@ -63,6 +63,16 @@ def test_missing_files():
         read_map("/nonexistent/x.map")
     with pytest.raises(MapError, match="unknown map"):
         resolve_map("nonsense")
+    with pytest.raises(MapError, match="unknown map"):
+        resolve_map("..")
+
+
+def test_a_shipped_movingai_map_is_named_as_bench_movingai_names_it():
+    from scenarios.benchmarks import movingai_map
+
+    name, free = resolve_map("room-64-64-8")
+    assert name == "room-64-64-8"
+    assert (free == read_map(movingai_map("room-64-64-8"))).all()
 
 
 def test_scen_checks_cells(tmp_path):
