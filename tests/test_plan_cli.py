@@ -86,6 +86,17 @@ def test_plan_scen_keeps_pairs_unless_asked(small_files, capsys):
     assert "wrote" in capsys.readouterr().out
 
 
+def test_a_shipped_movingai_map_and_its_scenario_by_name(tmp_path):
+    from protocol.mapfile import read_scen
+    from scenarios.benchmarks import movingai_scen
+
+    out = tmp_path / "p.json"
+    assert cli.main(["plan", "--map", "room-64-64-8", "--scen", "random-1", "--agents", "12", "--out", str(out)]) == 0
+    agents = read_scen(movingai_scen("room-64-64-8", "random-1"), None, 12)
+    plan = read_plan(out)
+    assert plan.starts == [a.start for a in agents] and plan.goals == [a.goal for a in agents]
+
+
 def test_plan_map_spec_and_fallback_note(tmp_path, capsys):
     out = tmp_path / "p.json"
     assert cli.main(["plan", "--map", "random:width=12,height=10,density=0.1", "--robots", "6",

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from pathlib import Path
 
 from protocol.errors import UavRobotsError
 
@@ -65,7 +66,8 @@ def add_plan_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--map", required=True, help="a MovingAI .map file or a map spec (warehouse-small, "
                    "warehouse-450, warehouse:blocks_x=..,blocks_y=.., random:width=..,height=..,density=..)")
     src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--scen", help="a MovingAI .scen file: robots start and goal cells")
+    src.add_argument("--scen", help="a MovingAI .scen file: robots start and goal cells; with a shipped "
+                                    "MovingAI map's name as --map, also its scenario's name (random-1, even-3)")
     src.add_argument("--robots", type=_positive_int, help="place N robots and N goals at random (seeded)")
     p.add_argument("--agents", type=_positive_int, help="with --scen: use the first N agents (default all)")
     p.add_argument("--seed", type=int, default=0, help="placement, random map and planner seed (default 0)")
@@ -87,11 +89,15 @@ def add_plan_parser(subparsers) -> argparse.ArgumentParser:
 def _load_instance(args):
     from protocol.errors import MapError
     from protocol.mapfile import read_scen
-    from scenarios.maps import place, resolve_map
+    from scenarios.maps import MOVINGAI, place, resolve_map
 
     name, free = resolve_map(args.map, args.seed)
     if args.scen:
-        agents = read_scen(args.scen, free, args.agents)
+        scen = Path(args.scen)
+        shipped = MOVINGAI / name / f"{name}-{args.scen}.scen"
+        if not scen.is_file() and "/" not in args.scen and shipped.is_file():
+            scen = shipped     # `--map room-64-64-8 --scen random-1`: the shipped scenario of that map
+        agents = read_scen(scen, free, args.agents)
         if not agents:
             raise MapError(f"{args.scen}: the scenario has no agents")
         return name, free, [a.start for a in agents], [a.goal for a in agents], args.assign or "none"
