@@ -16,9 +16,8 @@ import numpy as np
 
 from protocol.errors import MapError
 
-from .maps import NAMED, resolve_map, warehouse
+from .maps import DATA, NAMED, movingai_path, resolve_map, warehouse
 
-DATA = Path(__file__).resolve().parent / "data"
 PAPER_DIR = "paper-warehouse-450"
 PAPER_MAP = "warehouse-450"
 # sha256 of f"{width}x{height}:" + np.packbits(free) of the published warehouse-450.map.
@@ -49,12 +48,12 @@ def data_file(relative: str, data: str | Path | None = None) -> Path:
 
 
 def movingai_map(name: str, data: str | Path | None = None) -> Path:
-    return data_file(f"movingai/{name}/{name}.map", data)
+    return data_file(movingai_path(name), data)
 
 
 def movingai_scen(name: str, scen: str, data: str | Path | None = None) -> Path:
     """`scen` as in the file names: random-1, even-3, 10000agents-1 ..."""
-    return data_file(f"movingai/{name}/{name}-{scen}.scen", data)
+    return data_file(movingai_path(name, scen), data)
 
 
 def paper_map_spec(data: str | Path | None = None) -> str:

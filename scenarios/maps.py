@@ -87,8 +87,21 @@ def _params(text: str, spec: str) -> dict[str, float]:
     return out
 
 
-# The MovingAI maps that ship with the package (scenarios/data/movingai/NAME/NAME.map), by name.
-MOVINGAI = Path(__file__).resolve().parent / "data" / "movingai"
+DATA = Path(__file__).resolve().parent / "data"     # the benchmark files that ship with the package
+
+
+def movingai_path(name: str, scen: str | None = None) -> str:
+    """Where a MovingAI map (or, given `scen` as random-1, even-3 ..., its scenario) lies under a
+    data directory laid out as `DATA`."""
+    return f"movingai/{name}/{name}.map" if scen is None else f"movingai/{name}/{name}-{scen}.scen"
+
+
+def shipped_movingai(name: str, scen: str | None = None) -> Path | None:
+    """The shipped MovingAI map `name` (or its scenario `scen`), None if none ships by that name."""
+    if any("/" in part or part in ("", ".", "..") for part in (name, scen) if part is not None):
+        return None   # a name, not a way out of the data directory
+    path = DATA / movingai_path(name, scen)
+    return path if path.is_file() else None
 
 
 def resolve_map(spec: str, seed: int = 0) -> tuple[str, np.ndarray]:
@@ -97,8 +110,8 @@ def resolve_map(spec: str, seed: int = 0) -> tuple[str, np.ndarray]:
         return Path(spec).stem, read_map(spec)
     if spec in NAMED:
         return spec, warehouse(**NAMED[spec])
-    shipped = MOVINGAI / spec / f"{spec}.map"
-    if "/" not in spec and spec not in ("", ".", "..") and shipped.is_file():
+    shipped = shipped_movingai(spec)
+    if shipped is not None:
         return spec, read_map(shipped)
     kind, _, rest = spec.partition(":")
     p = _params(rest, spec)

@@ -89,15 +89,13 @@ def add_plan_parser(subparsers) -> argparse.ArgumentParser:
 def _load_instance(args):
     from protocol.errors import MapError
     from protocol.mapfile import read_scen
-    from scenarios.maps import MOVINGAI, place, resolve_map
+    from scenarios.maps import place, resolve_map, shipped_movingai
 
     name, free = resolve_map(args.map, args.seed)
     if args.scen:
-        scen = Path(args.scen)
-        shipped = MOVINGAI / name / f"{name}-{args.scen}.scen"
-        if not scen.is_file() and "/" not in args.scen and shipped.is_file():
-            scen = shipped     # `--map room-64-64-8 --scen random-1`: the shipped scenario of that map
-        agents = read_scen(scen, free, args.agents)
+        shipped = None if Path(args.scen).is_file() else shipped_movingai(name, args.scen)
+        # `--map room-64-64-8 --scen random-1`: the shipped scenario of that map
+        agents = read_scen(shipped or args.scen, free, args.agents)
         if not agents:
             raise MapError(f"{args.scen}: the scenario has no agents")
         return name, free, [a.start for a in agents], [a.goal for a in agents], args.assign or "none"
