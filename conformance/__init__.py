@@ -201,6 +201,7 @@ class FakeWorld(Waiter):
     answer: bool = True
     garbage: bool = False      # answer with bytes that do not decode
     aheads: list[tuple[str, MoveAhead]] = field(default_factory=list)   # (key, message) of each MoveAhead put
+    move_keys: list[tuple[str, list[int]]] = field(default_factory=list)  # (key, robots) of each move query
 
     def __post_init__(self) -> None:
         Waiter.__init__(self)
@@ -255,6 +256,7 @@ class FakeWorld(Waiter):
             batch = decode(q.payload, MoveBatch)
             with self.cv:
                 self.batch_seqs.append(batch.seq)
+                self.move_keys.append((q.key, [m[0] for m in batch.moves]))
             results = [self._judge(MoveRequest(robot=r, tick=batch.tick, frm=a, to=b)) for r, a, b in batch.moves]
             reply = encode(MoveBatchResult(tick=batch.tick, results=[
                 (res.robot, res.accepted, res.cell, res.reason) for res in results]))
@@ -262,6 +264,7 @@ class FakeWorld(Waiter):
             req = decode(q.payload, MoveRequest)
             with self.cv:
                 self.request_seqs.append((req.robot, req.seq))
+                self.move_keys.append((q.key, [req.robot]))
             reply = encode(self._judge(req))
         if self.answer:
             q.reply(b'{"type":"MoveResult","v":1,"robot":"seven"}' if self.garbage else reply)

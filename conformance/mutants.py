@@ -198,6 +198,10 @@ def _robot_patches() -> dict[str, Patch]:
         for k, robots in held:
             self._put_ahead(k, robots)
 
+    def plain_move_key(self):
+        self.move_key = self.keys.move
+        pool_start(self)
+
     def ignore_sigterm(self):
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
@@ -239,6 +243,7 @@ def _robot_patches() -> dict[str, Patch]:
         "R32": setattr_(agent.Lifecycle, "stop_on_signals", ignore_sigterm),
         "R33": setattr_(RobotPool, "_on_uav", lambda self, key, alive: None),
         "R34": setattr_(RobotPool, "_on_judged", states_first),
+        "R35": setattr_(RobotPool, "start", plain_move_key),
     }
 
 

@@ -123,6 +123,9 @@ RULES: tuple[Rule, ...] = (
               "cell from the world's `MovesJudged`, asks no query; a replan puts a new move for the next tick",
        ("test_a_robot_moving_ahead_puts_each_move_before_what_the_uav_waits_for",),
        "puts its state of tick k before its move of k+1"),
+    _r(35, K, "asks its moves on `P/world/move/<ids>`, `<ids>` its own ids, not on the plain `P/world/move` that "
+              "access control leaves unreachable", ("test_moves_are_asked_on_the_key_naming_the_robot",),
+       "asks on the plain `P/world/move`"),
     # ------------------------------------------------------------ UAVs
     _u(1, S, "declares `alive/uav` before it sends any plan and withdraws it when it exits",
        ("test_uav_token_is_up_before_any_plan_and_gone_after_exit",), "never declares `alive/uav`"),

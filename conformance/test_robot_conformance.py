@@ -115,6 +115,18 @@ def test_refused_move_leaves_the_robot_in_place(robot, uav, world, rid, timeout)
     assert uav.until(lambda: len(uav.dones.get(rid, [])) == 1, timeout)
 
 
+def test_moves_are_asked_on_the_key_naming_the_robot(robot, hub, uav, world, rid, timeout):
+    """docs/protocol.md, Keys and Security: `P/world/move/<ids>`, not the plain `P/world/move` that
+    access control leaves unreachable (an independent robot asking there passed every other test)."""
+    path = [(2, 2), (3, 2), (3, 3)]
+    _accepted(uav, rid, "p-key", path, timeout)
+    _run_ticks(uav, world, rid, "p-key", path, 2, timeout)
+    with world.cv:
+        keys = [key for key, robots in world.move_keys if rid in robots]
+    assert len(keys) == 2 and set(keys) == {hub.keys.move_as([rid])}, \
+        f"moves asked on {sorted(set(keys))}, expected {hub.keys.move_as([rid])}"
+
+
 def _wrong_version(msg) -> bytes:
     return encode(msg).replace(b'"v":1', b'"v":99', 1)
 
