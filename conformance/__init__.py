@@ -20,10 +20,10 @@ from pathlib import Path
 from typing import Any, Callable
 
 from protocol.config import hub_config
-from protocol.errors import MissionError, ProtocolError
-from protocol.keys import Keys, new_fleet_name, robot_id_from_key
+from protocol.errors import MissionError, ProtocolError, UavRobotsError
+from protocol.keys import Keys, ids_of_states_key, new_fleet_name, robot_id_from_key
 from protocol.messages import (Done, MissionEnd, MoveAhead, MoveBatch, MoveBatchResult, MoveRequest, MoveResult,
-                               MovesJudged, Plan, PlanAck, RobotState, Tick, decode, encode)
+                               MovesJudged, Plan, PlanAck, RobotState, StateBatch, Tick, decode, encode)
 from protocol.transport import Handle, IncomingQuery, Transport, ZenohTransport
 
 REPO = Path(__file__).resolve().parents[1]
@@ -96,6 +96,7 @@ class FakeUav(Waiter):
     states: dict[int, list[RobotState]] = field(default_factory=dict)
     dones: dict[int, list[Done]] = field(default_factory=dict)
     garbage: list[str] = field(default_factory=list)
+    batches: list[tuple[str, int]] = field(default_factory=list)   # (key, tick) of each StateBatch
 
     def __post_init__(self) -> None:
         Waiter.__init__(self)
@@ -105,6 +106,7 @@ class FakeUav(Waiter):
             t.subscribe(k.all_acks, self._collect(PlanAck, self.acks)),
             t.subscribe(k.all_states, self._collect(RobotState, self.states)),
             t.subscribe(k.all_done, self._collect(Done, self.dones)),
+            t.subscribe(k.all_state_batches, self._on_batch),
             t.watch_alive(k.alive_robots, self._on_alive),
         ]
         self._token = t.announce(k.alive_uav) if self.announce else None
@@ -125,6 +127,26 @@ class FakeUav(Waiter):
                 self.cv.notify_all()
         return cb
 
+    def _on_batch(self, key: str, payload: bytes) -> None:
+        """A pool's StateBatch: each entry a RobotState of the batch's tick, for the robots its key names only
+        (docs/protocol.md, State batches)."""
+        try:
+            ids = set(ids_of_states_key(self.keys, key))
+            batch = decode(payload, StateBatch)
+        except (ProtocolError, UavRobotsError) as exc:
+            self.garbage.append(f"{key}: {exc}")
+            self.changed()
+            return
+        with self.cv:
+            self.batches.append((key, batch.tick))
+            for robot, cell, status, plan_id, error in batch.states:
+                if robot not in ids:
+                    self.garbage.append(f"{key}: a state of robot {robot}, which the key does not name")
+                    continue
+                self.states.setdefault(robot, []).append(RobotState(robot=robot, tick=batch.tick, cell=cell,
+                                                                    status=status, plan_id=plan_id, error=error))
+            self.cv.notify_all()
+
     def _on_alive(self, key: str, alive: bool) -> None:
         rid = robot_id_from_key(key)
         with self.cv:
@@ -143,8 +165,9 @@ class FakeUav(Waiter):
                    seq=self._next())
         self.transport.put(self.keys.plan(robot), encode(msg))
 
-    def tick(self, k: int, ticks: int, plan_id: str) -> None:
-        self.transport.put(self.keys.tick, encode(Tick(k=k, ticks=ticks, plan_id=plan_id, seq=self._next())))
+    def tick(self, k: int, ticks: int, plan_id: str, batch_states: bool = False) -> None:
+        self.transport.put(self.keys.tick, encode(Tick(k=k, ticks=ticks, plan_id=plan_id, batch_states=batch_states,
+                                                       seq=self._next())))
 
     def end(self, completed: bool = True, reason: str = "") -> None:
         self.transport.put(self.keys.mission_end, encode(MissionEnd(completed=completed, reason=reason,

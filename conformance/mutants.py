@@ -202,6 +202,10 @@ def _robot_patches() -> dict[str, Patch]:
         self.move_key = self.keys.move
         pool_start(self)
 
+    def batch_key_of_the_first(self):
+        self.states_key = self.keys.states_as([min(self.machines)])
+        pool_start(self)
+
     def ignore_sigterm(self):
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
@@ -244,6 +248,7 @@ def _robot_patches() -> dict[str, Patch]:
         "R33": setattr_(RobotPool, "_on_uav", lambda self, key, alive: None),
         "R34": setattr_(RobotPool, "_on_judged", states_first),
         "R35": setattr_(RobotPool, "start", plain_move_key),
+        "R36": setattr_(RobotPool, "start", batch_key_of_the_first),
     }
 
 

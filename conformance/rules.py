@@ -126,6 +126,10 @@ RULES: tuple[Rule, ...] = (
     _r(35, K, "asks its moves on `P/world/move/<ids>`, `<ids>` its own ids, not on the plain `P/world/move` that "
               "access control leaves unreachable", ("test_moves_are_asked_on_the_key_naming_the_robot",),
        "asks on the plain `P/world/move`"),
+    _r(36, M, "a pool told `batch_states` may put one `StateBatch` a tick on `P/robots/<ids>/states` (its own ids, "
+              "canonical) instead of its robots' `RobotState`s; either way each robot's state of the tick, once",
+       ("test_a_pool_told_to_batch_reports_each_robots_state_of_the_tick",),
+       "puts its batches on a key naming its first robot only"),
     # ------------------------------------------------------------ UAVs
     _u(1, S, "declares `alive/uav` before it sends any plan and withdraws it when it exits",
        ("test_uav_token_is_up_before_any_plan_and_gone_after_exit",), "never declares `alive/uav`"),

@@ -402,6 +402,32 @@ def test_a_pool_keeps_each_robots_contract(spawn, pool_cmd, uav, world, rid, tim
     assert batches == list(range(1, len(batches) + 1)), f"the pool's MoveBatch seq {batches}, expected 1, 2, 3, ..."
 
 
+def test_a_pool_told_to_batch_reports_each_robots_state_of_the_tick(spawn, pool_cmd, hub, uav, world, rid, timeout):
+    """docs/protocol.md, State batches: a `Tick` with `batch_states` lets a pool put one `StateBatch` on
+    `P/robots/<ids>/states` (its own ids, canonical) instead of a `RobotState` per robot. Optional, but
+    what it puts must be each robot's state of the tick, once."""
+    ids = [rid, rid + 1]
+    paths = {rid: [(2, 2), (3, 2), (3, 3)], rid + 1: [(6, 6), (6, 5), (6, 5)]}
+    proc = spawn(pool_cmd, ids)
+    assert uav.until(lambda: set(ids) <= uav.alive or proc.poll() is not None, timeout), \
+        f"the pool declared tokens {sorted(uav.alive)}, expected {ids}"
+    for r in ids:
+        _accepted(uav, r, "p-batch", paths[r], timeout)
+    for k in (1, 2):
+        uav.tick(k, 2, "p-batch", batch_states=True)
+        for r in ids:
+            st = uav.state_at(r, k, timeout)
+            assert st is not None, f"robot {r}: no state of tick {k} (a RobotState or a StateBatch entry)"
+            assert tuple(st.cell) == paths[r][k] and st.plan_id == "p-batch", f"robot {r}, tick {k}: {st}"
+    time.sleep(QUIET_S)
+    assert not uav.garbage, uav.garbage[:3]
+    with uav.cv:
+        batches = list(uav.batches)
+        counts = {(r, k): sum(s.tick == k for s in uav.states[r]) for r in ids for k in (1, 2)}
+    assert all(key == hub.keys.states_as(ids) for key, _ in batches), f"StateBatch keys {batches}"
+    assert all(n == 1 for n in counts.values()), f"states per robot and tick {counts}, expected one each"
+
+
 # ---------------------------------------------------------------- moving ahead
 def _at(order: list, item: tuple, timeout: float) -> int:
     """Where `item` is in `order` (the router's arrival order), waiting for it up to `timeout`."""
