@@ -25,6 +25,9 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                     help="command line of the robot moving ahead (optional, docs/protocol.md 'Moving ahead'); "
                          "placeholders as --robot-cmd (default: ours with --moves ahead when --robot-cmd is ours; "
                          "else the test of that mode is skipped)")
+    group.addoption("--robot-pool-ahead-cmd", default=None,
+                    help="command line of a pool moving ahead; placeholders as --robot-pool-cmd (default: ours with "
+                         "--moves ahead when --robot-cmd is ours; else the test of that mode is skipped)")
     group.addoption("--robot-id", type=int, default=7, help="the robot id to start it with")
     group.addoption("--robot-timeout", type=float, default=10.0,
                     help="seconds a robot gets to come alive (and to answer anything)")
@@ -49,24 +52,32 @@ def robot_cmd(request: pytest.FixtureRequest) -> str:
     return request.config.getoption("--robot-cmd")
 
 
+def _optional_cmd(request: pytest.FixtureRequest, option: str, ours: str, skip: str) -> str:
+    """The command line given with `option`; ours when the robot under test is ours; else the test is skipped."""
+    cmd = request.config.getoption(option)
+    if cmd is None and request.config.getoption("--robot-cmd") == DEFAULT_ROBOT_CMD:
+        cmd = ours
+    if not cmd:
+        pytest.skip(skip)
+    return cmd
+
+
 @pytest.fixture
 def pool_cmd(request: pytest.FixtureRequest) -> str:
-    cmd = request.config.getoption("--robot-pool-cmd")
-    if cmd is None and request.config.getoption("--robot-cmd") == DEFAULT_ROBOT_CMD:
-        cmd = DEFAULT_POOL_CMD
-    if not cmd:
-        pytest.skip("no --robot-pool-cmd given: the implementation is checked as a single robot only")
-    return cmd
+    return _optional_cmd(request, "--robot-pool-cmd", DEFAULT_POOL_CMD,
+                         "no --robot-pool-cmd given: the implementation is checked as a single robot only")
 
 
 @pytest.fixture
 def ahead_cmd(request: pytest.FixtureRequest) -> str:
-    cmd = request.config.getoption("--robot-ahead-cmd")
-    if cmd is None and request.config.getoption("--robot-cmd") == DEFAULT_ROBOT_CMD:
-        cmd = DEFAULT_ROBOT_CMD + " --moves ahead"
-    if not cmd:
-        pytest.skip("no --robot-ahead-cmd given: moving ahead is optional, and not checked")
-    return cmd
+    return _optional_cmd(request, "--robot-ahead-cmd", DEFAULT_ROBOT_CMD + " --moves ahead",
+                         "no --robot-ahead-cmd given: moving ahead is optional, and not checked")
+
+
+@pytest.fixture
+def pool_ahead_cmd(request: pytest.FixtureRequest) -> str:
+    return _optional_cmd(request, "--robot-pool-ahead-cmd", DEFAULT_POOL_CMD + " --moves ahead",
+                         "no --robot-pool-ahead-cmd given: a pool moving ahead is optional, and not checked")
 
 
 @pytest.fixture

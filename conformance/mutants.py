@@ -20,7 +20,7 @@ import time
 from typing import Callable
 
 from protocol.errors import ProtocolError
-from protocol.messages import Plan, PlanAck, RobotState, Tick, decode
+from protocol.messages import MoveAhead, Plan, PlanAck, RobotState, Tick, decode, encode
 
 Patch = Callable[[], None]
 
@@ -206,6 +206,19 @@ def _robot_patches() -> dict[str, Patch]:
         self.states_key = self.keys.states_as([min(self.machines)])
         pool_start(self)
 
+    def one_move_ahead(self, k, robots):
+        moves, plan_id = [], None
+        for r in robots:
+            m = self.machines[r]
+            step = m.target(k)
+            if step is not None:
+                moves.append((r, step.frm, step.to))
+                plan_id = plan_id if plan_id is not None else (m.plan.plan_id if m.plan else "")
+        if moves:
+            self._ahead_seq += 1
+            self.transport.put(self.ahead_key, encode(MoveAhead(tick=k, plan_id=plan_id, moves=moves,
+                                                                seq=self._ahead_seq)))
+
     def ignore_sigterm(self):
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
@@ -249,6 +262,7 @@ def _robot_patches() -> dict[str, Patch]:
         "R34": setattr_(RobotPool, "_on_judged", states_first),
         "R35": setattr_(RobotPool, "start", plain_move_key),
         "R36": setattr_(RobotPool, "start", batch_key_of_the_first),
+        "R37": setattr_(RobotPool, "_put_ahead", one_move_ahead),
     }
 
 

@@ -130,6 +130,10 @@ RULES: tuple[Rule, ...] = (
               "canonical) instead of its robots' `RobotState`s; either way each robot's state of the tick, once",
        ("test_a_pool_told_to_batch_reports_each_robots_state_of_the_tick",),
        "puts its batches on a key naming its first robot only"),
+    _r(37, P, "a pool moving ahead (optional) puts one `MoveAhead` per `plan_id` its robots hold, on "
+              "`P/world/ahead/<ids>` (its own ids, canonical): a robot holding another plan than the tick's stays",
+       ("test_a_pool_moving_ahead_puts_one_move_per_plan_it_holds",),
+       "puts every robot's move under the first robot's plan"),
     # ------------------------------------------------------------ UAVs
     _u(1, S, "declares `alive/uav` before it sends any plan and withdraws it when it exits",
        ("test_uav_token_is_up_before_any_plan_and_gone_after_exit",), "never declares `alive/uav`"),

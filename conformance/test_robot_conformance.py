@@ -373,15 +373,25 @@ def test_sequence_numbers_count_by_one_from_1(robot, uav, world, rid, timeout):
 
 
 # ---------------------------------------------------------------- pools
-def test_a_pool_keeps_each_robots_contract(spawn, pool_cmd, uav, world, rid, timeout):
-    """A process hosting several robots: each acks, moves once a tick and reports on its own keys and counter."""
-    ids = [rid, rid + 1]
-    paths = {rid: [(2, 2), (3, 2), (3, 3)], rid + 1: [(6, 6), (6, 5), (6, 5)]}
-    proc = spawn(pool_cmd, ids)
+def _pool_with_plans(spawn, cmd: str, uav, timeout: float, plans: dict[int, str], paths: dict[int, list]) -> list[int]:
+    """A pool hosting the robots of `plans` (robot -> plan id), each of which has acknowledged its plan."""
+    ids = sorted(plans)
+    proc = spawn(cmd, ids)
     assert uav.until(lambda: set(ids) <= uav.alive or proc.poll() is not None, timeout), \
         f"the pool declared tokens {sorted(uav.alive)}, expected {ids}"
     for r in ids:
-        _accepted(uav, r, "p-pool", paths[r], timeout)   # one plan_id for the fleet, as the UAV sends
+        _accepted(uav, r, plans[r], paths[r], timeout)
+    return ids
+
+
+POOL_PATHS = {0: [(2, 2), (3, 2), (3, 3)], 1: [(6, 6), (6, 5), (6, 5)]}   # by offset from --robot-id
+
+
+def test_a_pool_keeps_each_robots_contract(spawn, pool_cmd, uav, world, rid, timeout):
+    """A process hosting several robots: each acks, moves once a tick and reports on its own keys and counter."""
+    paths = {rid + i: p for i, p in POOL_PATHS.items()}
+    # one plan_id for the fleet, as the UAV sends
+    ids = _pool_with_plans(spawn, pool_cmd, uav, timeout, dict.fromkeys(paths, "p-pool"), paths)
     for k in (1, 2):
         uav.tick(k, 2, "p-pool")
         for r in ids:
@@ -406,13 +416,8 @@ def test_a_pool_told_to_batch_reports_each_robots_state_of_the_tick(spawn, pool_
     """docs/protocol.md, State batches: a `Tick` with `batch_states` lets a pool put one `StateBatch` on
     `P/robots/<ids>/states` (its own ids, canonical) instead of a `RobotState` per robot. Optional, but
     what it puts must be each robot's state of the tick, once."""
-    ids = [rid, rid + 1]
-    paths = {rid: [(2, 2), (3, 2), (3, 3)], rid + 1: [(6, 6), (6, 5), (6, 5)]}
-    proc = spawn(pool_cmd, ids)
-    assert uav.until(lambda: set(ids) <= uav.alive or proc.poll() is not None, timeout), \
-        f"the pool declared tokens {sorted(uav.alive)}, expected {ids}"
-    for r in ids:
-        _accepted(uav, r, "p-batch", paths[r], timeout)
+    paths = {rid + i: p for i, p in POOL_PATHS.items()}
+    ids = _pool_with_plans(spawn, pool_cmd, uav, timeout, dict.fromkeys(paths, "p-batch"), paths)
     for k in (1, 2):
         uav.tick(k, 2, "p-batch", batch_states=True)
         for r in ids:
@@ -491,3 +496,31 @@ def test_a_robot_moving_ahead_puts_each_move_before_what_the_uav_waits_for(spawn
         assert not world.request_seqs and not world.batch_seqs, "a robot moving ahead asked the world too"
     finally:
         h.close()
+
+
+def test_a_pool_moving_ahead_puts_one_move_per_plan_it_holds(spawn, pool_ahead_cmd, hub, uav, world, rid, timeout):
+    """docs/protocol.md, Moving ahead, 3: a pool whose robots hold different plans puts one `MoveAhead`
+    per `plan_id`, on `P/world/ahead/<ids>` (its own ids, canonical), and takes each robot's cell from the
+    `MovesJudged`: on a tick naming one plan, the robot holding the other stays."""
+    paths = {rid: [(2, 2), (3, 2), (3, 3)], rid + 1: [(6, 6), (6, 5), (6, 4)]}
+    plans = {rid: "pa", rid + 1: "pb"}
+    ids = _pool_with_plans(spawn, pool_ahead_cmd, uav, timeout, plans, paths)
+
+    def moves_of(k: int) -> None:
+        for r in ids:
+            got = world.ahead_for(r, k, timeout)
+            assert got, f"robot {r}: no MoveAhead for tick {k}"
+            key, msg = got[-1]
+            assert key == hub.keys.ahead_as(ids), f"robot {r}: its MoveAhead for tick {k} came on {key}"
+            assert msg.plan_id == plans[r], f"robot {r} holds plan {plans[r]}: its move for tick {k} came " \
+                                            f"under {msg.plan_id!r} ({msg.moves})"
+    moves_of(1)
+    uav.tick(1, 2, "pa")
+    states = {r: uav.state_at(r, 1, timeout) for r in ids}
+    assert states[rid] is not None and tuple(states[rid].cell) == paths[rid][1], f"robot {rid}: {states[rid]}"
+    assert states[rid + 1] is not None and tuple(states[rid + 1].cell) == paths[rid + 1][0], \
+        f"robot {rid + 1} holds another plan than the tick's: it stays ({states[rid + 1]})"
+    moves_of(2)   # put together, after the one MovesJudged of tick 1
+    with world.cv:
+        asked = [key for key, robots in world.move_keys if set(robots) & set(ids)]
+    assert not asked, f"a pool moving ahead asks no query: it asked on {asked}"

@@ -51,7 +51,8 @@ def _command(side: str, rule: str) -> tuple[str, ...]:
     if side == "uav":
         return ("--uav-cmd", f"{impl} {UAV_ARGS}", *UAV_OPTS)
     return ("--robot-cmd", f"{impl} --id {{id}} {ROBOT_ARGS}", "--robot-pool-cmd", f"{impl} --ids {{ids}} {ROBOT_ARGS}",
-            "--robot-ahead-cmd", f"{impl} --id {{id}} {ROBOT_ARGS} --moves ahead", *ROBOT_OPTS)
+            "--robot-ahead-cmd", f"{impl} --id {{id}} {ROBOT_ARGS} --moves ahead",
+            "--robot-pool-ahead-cmd", f"{impl} --ids {{ids}} {ROBOT_ARGS} --moves ahead", *ROBOT_OPTS)
 
 
 def _suite(side: str, rule: str, tests: tuple[str, ...]) -> Verdict:
