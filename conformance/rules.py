@@ -149,7 +149,7 @@ RULES: tuple[Rule, ...] = (
        ("test_ticks_start_after_every_ack_and_count_up_by_one",), "does not wait for the acks"),
     _u(6, P, "ticks count 1, 2, ... by one, up to at least the makespan, one `plan_id` per plan",
        ("test_ticks_start_after_every_ack_and_count_up_by_one",), "skips tick 1"),
-    _u(7, M, "`Tick.ticks` is the plan's makespan", ("test_ticks_start_after_every_ack_and_count_up_by_one",),
+    _u(7, M, "`Tick.ticks` is the plan's last tick (for a first plan its makespan)", ("test_ticks_start_after_every_ack_and_count_up_by_one",),
        "announces one tick more"),
     _u(8, P, "the tick barrier: `Tick(k+1)` only after every robot in the plan reported tick `k`",
        ("test_the_lockstep_barrier_holds",), "does not wait for the states"),
