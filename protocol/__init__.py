@@ -8,15 +8,15 @@ from .errors import MapError, MissionError, PlanningError, ProtocolError, UavRob
 
 if TYPE_CHECKING:
     from .keys import Keys, new_fleet_name
-    from .messages import PROTOCOL_VERSION, decode, encode
+    from .messages import PROTOCOL_VERSION, SCHEMA_VERSION, decode, encode
 
 __all__ = ["Keys", "MapError", "MissionError", "PROTOCOL_VERSION", "PlanningError", "ProtocolError",
-           "UavRobotsError", "decode", "encode", "new_fleet_name"]
+           "SCHEMA_VERSION", "UavRobotsError", "decode", "encode", "new_fleet_name"]
 
 # Imported on first use: every command imports this package (its errors, the process life cycle),
 # and `uav-robots plan` needs neither the key expressions nor the message classes.
-_LAZY = {"Keys": "keys", "new_fleet_name": "keys", "PROTOCOL_VERSION": "messages", "decode": "messages",
-         "encode": "messages"}
+_LAZY = {"Keys": "keys", "new_fleet_name": "keys", "PROTOCOL_VERSION": "messages", "SCHEMA_VERSION": "messages",
+         "decode": "messages", "encode": "messages"}
 
 
 def __getattr__(name: str) -> Any:

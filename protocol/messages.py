@@ -1,7 +1,7 @@
 """Typed, versioned messages: the wire contract between UAV, world and robots.
 
 Every message is a frozen dataclass. On the wire it is one UTF-8 JSON object
-`{"type": ..., "v": PROTOCOL_VERSION, "seq": ..., <fields>}`; a message with a
+`{"type": ..., "v": SCHEMA_VERSION, "seq": ..., <fields>}`; a message with a
 `bytes` field (a camera image) carries those bytes after a NUL byte that JSON
 itself never contains. `decode` checks the size, the type name, the version and
 every field's type and bounds, and raises `ProtocolError` with one line naming
@@ -26,12 +26,21 @@ from typing import Annotated, Any, Callable, ClassVar, Literal, NamedTuple, Type
 from . import grid
 from .errors import ProtocolError
 
-PROTOCOL_VERSION = 1
+# `v` of every message: the version of the message format. No field was removed or retyped since 1,
+# so a reader of 1 decodes every message of today (docs/protocol.md, Versioning).
+SCHEMA_VERSION = 1
+# The version of the rules of docs/protocol.md a robot keeps, which it states in PlanAck.protocol
+# (absent: 1). 2 is today's document; its changelog says what changed from 1.
+PROTOCOL_VERSION = 2
+MAX_PROTOCOL = 1_000
 
 # Limits: every number that sizes a receiver's memory or work is bounded when a message is
 # decoded. docs/protocol.md repeats them for other implementations.
-MAX_MESSAGE_BYTES = 8 * 2**20    # JSON text of any message but a Record (a full MoveBatchResult fits)
-MAX_RECORD_BYTES = 128 * 2**20   # a Record holds every robot's executed path
+# Each type's JSON text is at most its own limit (json_limit): the longest its bounded fields can
+# write plus MARGIN_BYTES for optional fields a newer sender adds, and never more than its cap.
+MAX_MESSAGE_BYTES = 8 * 2**20    # the cap of every type but Record's (a full MoveBatchResult fits)
+MAX_RECORD_BYTES = 128 * 2**20   # Record's cap: it holds every robot's executed path
+MARGIN_BYTES = 4_096             # room for fields this side does not know, in every type's limit
 MAX_IMAGE_BYTES = 64 * 2**20     # a CameraFrame's PNG, after the NUL
 MAX_DEPTH = 32                   # nested arrays and objects, the message's own object included
 MAX_COUNT = 2**53 - 1            # seq and counters: the largest integer every JSON reader holds exactly
@@ -89,7 +98,7 @@ Landmark = tuple[Annotated[int, Range(0, MAX_ROBOT_ID)], Finite, Finite]
 
 @dataclass(frozen=True)
 class Message:
-    max_json_bytes: ClassVar[int] = MAX_MESSAGE_BYTES
+    json_cap_bytes: ClassVar[int] = MAX_MESSAGE_BYTES   # its JSON text's limit is json_limit(type), at most this
     seq: Count = field(default=0, kw_only=True)
 
 
@@ -116,6 +125,9 @@ class PlanAck(Message):
     plan_id: Text
     ok: bool
     error: Text = ""
+    # The protocol version (the document's rules) the robot keeps; absent: 1, a robot written before
+    # there was a version to state. Ours state PROTOCOL_VERSION.
+    protocol: Annotated[int, Range(1, MAX_PROTOCOL)] = 1
 
 
 @dataclass(frozen=True)
@@ -299,7 +311,7 @@ class RecordRequest(Message):
 @dataclass(frozen=True)
 class Record(Message):
     """World -> anyone, for scoring after the mission: what physically happened."""
-    max_json_bytes: ClassVar[int] = MAX_RECORD_BYTES
+    json_cap_bytes: ClassVar[int] = MAX_RECORD_BYTES
     ticks: TickNo
     collisions: Count
     refused: Annotated[list[Object], MaxLen(MAX_REFUSED)]
@@ -401,7 +413,7 @@ def _bytes_field(cls: type[Message]) -> str | None:
 def encode(msg: Message) -> bytes:
     cls = type(msg)
     codec = _codec(cls)
-    body: dict[str, Any] = {"type": cls.__name__, "v": PROTOCOL_VERSION}
+    body: dict[str, Any] = {"type": cls.__name__, "v": SCHEMA_VERSION}
     for name, _required, _conv in codec.fields:
         body[name] = getattr(msg, name)
     head = _ENCODER.encode(body).encode()
@@ -424,21 +436,24 @@ def _refuse_constant(token: str) -> Any:
 _JSON = json.JSONDecoder(parse_constant=_refuse_constant)
 
 
-def decode(data: bytes | bytearray | memoryview, expected: type[M]) -> M:
-    """Bytes -> message of type `expected`, or ProtocolError naming what is wrong."""
+def decode(data: bytes | bytearray | memoryview, expected: type[M], entries: int | None = None) -> M:
+    """Bytes -> message of type `expected`, or ProtocolError naming what is wrong. `entries`: for a
+    batch (one list of per-robot entries), how many robots the receiver asked about or its key names:
+    the payload may then take only `batch_limit(expected, entries)` bytes."""
     name = expected.__name__
     codec = _codec(expected)
-    if len(data) > codec.max_payload:  # before copying or parsing anything
-        raise ProtocolError(f"{name}: payload of {len(data)} bytes is over the limit of {codec.max_payload}")
+    limit = codec.max_payload if entries is None else min(codec.max_payload, batch_limit(expected, entries))
+    if len(data) > limit:  # before copying or parsing anything
+        raise ProtocolError(f"{name}: payload of {len(data)} bytes is over the limit of {limit}"
+                            + ("" if entries is None else f" for {entries} robot(s)"))
     data = bytes(data)
     head, blob = data, b""
     if codec.blob is not None:
         head, sep, blob = data.partition(b"\0")
         if not sep:
             raise ProtocolError(f"{name}: payload lacks its binary part")
-        if len(head) > expected.max_json_bytes:
-            raise ProtocolError(f"{name}: JSON part of {len(head)} bytes is over the limit of "
-                                f"{expected.max_json_bytes}")
+        if len(head) > codec.max_json:
+            raise ProtocolError(f"{name}: JSON part of {len(head)} bytes is over the limit of {codec.max_json}")
         if len(blob) > codec.max_blob:
             raise ProtocolError(f"{name}: binary part of {len(blob)} bytes is over the limit of {codec.max_blob}")
     try:
@@ -459,9 +474,9 @@ def decode(data: bytes | bytearray | memoryview, expected: type[M]) -> M:
             raise ProtocolError(f"expected a {name} message, got an object without a 'type'")
         raise ProtocolError(f"expected a {name} message, got type {str(body.get('type'))[:40]!r}")
     v = body.get("v")
-    if type(v) is not int or v != PROTOCOL_VERSION:
+    if type(v) is not int or v != SCHEMA_VERSION:
         raise ProtocolError(f"{name}: schema version {str(v)[:20]!r} is not supported "
-                            f"(this side speaks {PROTOCOL_VERSION})")
+                            f"(this side speaks {SCHEMA_VERSION})")
     kwargs: dict[str, Any] = {}
     for fname, required, conv in codec.fields:
         if fname in body:
@@ -486,6 +501,7 @@ class _Codec(NamedTuple):
     blob: str | None
     fields: list[tuple[str, bool, Callable[[Any], Any]]]
     known: frozenset[str]
+    max_json: int      # the JSON text's limit, json_limit
     max_blob: int
     max_payload: int
 
@@ -501,9 +517,89 @@ def _codec(cls: type[Message]) -> _Codec:
                   for f in wire_fields(cls) if f.name != blob]
         max_blob = sum(_need(bound(unwrap(f.type)[1], MaxLen), "binary tail", f.name).n
                        for f in wire_fields(cls) if f.name == blob)
-        _CODECS[cls] = _Codec(blob, fields, frozenset({"type", "v"} | {f[0] for f in fields}), max_blob,
-                              cls.max_json_bytes + (0 if blob is None else 1 + max_blob))
+        longest = _longest_json(cls)
+        max_json = cls.json_cap_bytes if longest is None else min(
+            cls.json_cap_bytes, -(-(longest + MARGIN_BYTES) // 1024) * 1024)   # whole KiB
+        _CODECS[cls] = _Codec(blob, fields, frozenset({"type", "v"} | {f[0] for f in fields}), max_json, max_blob,
+                              max_json + (0 if blob is None else 1 + max_blob))
     return _CODECS[cls]
+
+
+def batch_limit(cls: type[Message], entries: int) -> int:
+    """The most bytes a batch message (MoveBatch, MoveBatchResult, MoveAhead, MovesJudged, StateBatch)
+    may take when it is for `entries` robots: its other fields at their longest, that many of its
+    longest entry, and the margin for unknown fields; never more than `json_limit`. A batch's type
+    allows 65,536 entries of free text, some 3 GB, capped at 8 MiB; a lone robot's answer needs 54 KiB."""
+    total = len(_ENCODER.encode({"type": cls.__name__})) + len(',"v":') + _VERSION_CHARS
+    for f in wire_fields(cls):
+        base, meta = unwrap(f.type)
+        if get_origin(base) is list:
+            (item,) = get_args(base)
+            n = max(0, min(entries, bound(meta, MaxLen).n))
+            value = 2 + n * _longest_value(item) + max(0, n - 1)
+        else:
+            value = _longest_value(f.type)
+        total += len(_ENCODER.encode(f.name)) + 2 + value
+    return min(json_limit(cls), -(-(total + MARGIN_BYTES) // 1024) * 1024)
+
+
+def json_limit(cls: type[Message]) -> int:
+    """The most bytes a `cls` message's JSON text may take (a CameraFrame's before its NUL): checked by
+    `decode` on the payload's length before it parses anything (docs/protocol.md, Limits)."""
+    return _codec(cls).max_json
+
+
+# The longest JSON text a value takes, as any JSON writer may write it without whitespace: a float
+# in 24 characters (-2.2250738585072014e-308), a string character in 12 (a code point beyond the
+# BMP escaped as a surrogate pair, \ud83d\ude00), a patterned string's in 1 (our patterns spell ASCII).
+_FLOAT_CHARS = 24
+_ESCAPED_CHAR = 12
+_VERSION_CHARS = 6   # "v": a small integer
+
+
+def _longest_json(cls: type[Message]) -> int | None:
+    """The longest JSON text of a `cls` message's bounded fields (its binary tail aside); None if a
+    field is free-form (Any), so only the type's cap bounds it."""
+    blob = _bytes_field(cls)
+    total = len(_ENCODER.encode({"type": cls.__name__})) + len(',"v":') + _VERSION_CHARS
+    for f in wire_fields(cls):
+        if f.name == blob:
+            continue
+        n = _longest_value(f.type)
+        if n is None:
+            return None
+        total += len(_ENCODER.encode(f.name)) + 2 + n   # ,"name":value
+    return total
+
+
+def _longest_value(tp: Any) -> int | None:
+    base, meta = unwrap(tp)
+    origin = get_origin(base)
+    if base is bool:
+        return len("false")
+    if base is int:
+        r = bound(meta, Range)
+        return max(len(str(r.lo)), len(str(r.hi)))
+    if base is float:
+        return _FLOAT_CHARS
+    if base is str:
+        return 2 + bound(meta, MaxLen).n * (1 if bound(meta, Pattern) is not None else _ESCAPED_CHAR)
+    if origin is Literal:
+        return max(len(json.dumps(a)) for a in get_args(base))
+    if origin is tuple:
+        parts = [_longest_value(a) for a in get_args(base)]
+        return None if None in parts else 1 + sum(parts) + len(parts)   # [a,b,c]
+    if origin is list or origin is dict:
+        n = bound(meta, MaxLen).n
+        parts = [_longest_value(a) for a in get_args(base)]
+        if None in parts:
+            return None
+        item = sum(parts) + (len(parts) - 1)    # a value, or "key":value
+        return 2 + n * item + max(0, n - 1)
+    if origin in (typing.Union, types.UnionType):
+        parts = [_longest_value(a) for a in get_args(base)]
+        return None if None in parts else max(parts)
+    return None   # Any: free-form
 
 
 def _deeper_than(value: Any, limit: int) -> bool:

@@ -17,8 +17,8 @@ import typing
 from pathlib import Path
 from typing import Any, Literal, get_args, get_origin
 
-from .messages import (MAX_DEPTH, MESSAGE_TYPES, PROTOCOL_VERSION, Cell, MaxLen, Message, Pattern, Range, bound,
-                       unwrap, wire_fields)
+from .messages import (MAX_DEPTH, MESSAGE_TYPES, SCHEMA_VERSION, Cell, MaxLen, Message, Pattern, Range, bound,
+                       json_limit, unwrap, wire_fields)
 
 DRAFT = "https://json-schema.org/draft/2020-12/schema"
 SCHEMA_DIR = Path(__file__).with_name("schemas")
@@ -77,13 +77,13 @@ def message_schema(cls: type[Message]) -> dict[str, Any]:
     doc = cls.__doc__ or ""
     written = "" if doc.startswith(name + "(") else " ".join(doc.split())  # dataclass makes one up when none is written
     notes = [written,
-             f"A UTF-8 JSON object of at most {cls.max_json_bytes} bytes, nested at most {MAX_DEPTH} levels deep;"
+             f"A UTF-8 JSON object of at most {json_limit(cls)} bytes, nested at most {MAX_DEPTH} levels deep;"
              " receivers ignore properties they do not know."]
     blob = _blob(cls)
     if blob is not None:
         notes.append(f"On the wire the JSON is followed by a NUL byte and `{blob.name}`, at most "
                      f"{bound(unwrap(blob.type)[1], MaxLen).n} bytes, which this schema does not cover.")
-    properties: dict[str, Any] = {"type": {"const": name}, "v": {"const": PROTOCOL_VERSION}}
+    properties: dict[str, Any] = {"type": {"const": name}, "v": {"const": SCHEMA_VERSION}}
     required = ["type", "v"]
     defs: dict[str, Any] = {}
     for f in wire_fields(cls):
@@ -92,7 +92,7 @@ def message_schema(cls: type[Message]) -> dict[str, Any]:
         properties[f.name] = type_schema(f.type, defs)
         if f.required:
             required.append(f.name)
-    schema = {"$schema": DRAFT, "$id": f"urn:uav-robots:protocol:v{PROTOCOL_VERSION}:{name}", "title": name,
+    schema = {"$schema": DRAFT, "$id": f"urn:uav-robots:protocol:v{SCHEMA_VERSION}:{name}", "title": name,
               "description": " ".join(n for n in notes if n), "type": "object", "properties": properties,
               "required": required}
     if defs:

@@ -244,7 +244,7 @@ class RobotPool(Lifecycle):
     def _on_judged(self, payload: bytes) -> None:
         """The world's answer for tick k: first the moves of k+1 (so the world holds them before the
         UAV can put Tick(k+1)), then the states of k and any Done."""
-        judged = decode(payload, MovesJudged)
+        judged = decode(payload, MovesJudged, len(self.machines))
         k = judged.tick
         fresh: list[tuple[RobotMachine, MoveResult]] = []
         for robot, accepted, cell, reason in judged.results:
@@ -293,7 +293,7 @@ class RobotPool(Lifecycle):
         out: dict[int, MoveResult] = {}
         for raw in self.transport.request(self.move_key, encode(batch), self.move_timeout_s):
             try:
-                reply = decode(raw, MoveBatchResult)
+                reply = decode(raw, MoveBatchResult, len(steps))
             except ProtocolError as exc:
                 self.dropped(f"ignored move results: {exc}")
                 continue

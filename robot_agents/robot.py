@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 from protocol.errors import ProtocolError
 from protocol.grid import Cell
-from protocol.messages import Done, MoveResult, Plan, PlanAck, RobotState, Tick
+from protocol.messages import PROTOCOL_VERSION, Done, MoveResult, Plan, PlanAck, RobotState, Tick
 
 IDLE, READY, STEPPING, DONE, ERROR = "idle", "ready", "stepping", "done", "error"
 
@@ -94,7 +94,8 @@ class RobotMachine:
         return self._ack(pid, True, "")
 
     def _ack(self, plan_id: str, ok: bool, error: str) -> PlanAck:
-        return PlanAck(robot=self.robot_id, plan_id=plan_id, ok=ok, error=error)
+        # Every ack states the version of the document's rules this robot keeps (docs/protocol.md, Versioning).
+        return PlanAck(robot=self.robot_id, plan_id=plan_id, ok=ok, error=error, protocol=PROTOCOL_VERSION)
 
     # ------------------------------------------------------------- ticks
     def classify(self, tick: Tick) -> str:

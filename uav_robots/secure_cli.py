@@ -8,6 +8,7 @@ written: a new process needs a new `secure init`, so no file in DIR can mint ide
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 from dataclasses import asdict, dataclass
@@ -26,6 +27,7 @@ CONNECT_TIMEOUT_MS = 20_000
 # Robot processes (identities) per fleet: one ACL subject each, and one process per robot stops
 # scaling near 100 anyway (NOTES: lockstep rates); pools carry the larger fleets.
 MAX_ROBOT_PROCESSES = 1024
+MAX_MANIFEST_BYTES = 16 * 2**20   # fleet.json of the largest fleet, one id a line: under 1 MB
 
 
 @dataclass(frozen=True)
@@ -81,18 +83,63 @@ def _listen_on(addresses: Sequence[str]) -> list[str]:
 
 def read_fleet_dir(path: Path) -> Fleet:
     try:
-        data: dict[str, Any] = json.loads((path / MANIFEST).read_text())
-        fleet = Fleet(**data)
+        with (path / MANIFEST).open("rb") as f:
+            raw = f.read(MAX_MANIFEST_BYTES + 1)
     except FileNotFoundError:
         raise UavRobotsError(f"--secure {path}: no {MANIFEST}: make the directory with `uav-robots secure init`") from None
-    except (OSError, ValueError, TypeError) as exc:
-        raise UavRobotsError(f"--secure {path}: unreadable {MANIFEST}: {exc}") from None
+    except (OSError, ValueError) as exc:   # not a directory, a name too long, a NUL byte
+        raise UavRobotsError(f"--secure {str(path)[:120]!r}: cannot read {MANIFEST}: "
+                             f"{getattr(exc, 'strerror', None) or exc}") from None
+    if len(raw) > MAX_MANIFEST_BYTES:
+        raise _damaged(path, f"is over {MAX_MANIFEST_BYTES:,} bytes")
+    try:
+        data = json.loads(raw)
+    except (ValueError, RecursionError) as exc:   # not UTF-8 or not JSON, a number too long, nesting
+        raise _damaged(path, f"is not JSON ({str(exc)[:80] or type(exc).__name__})") from None
+    fleet = _fleet_from(data, path)
     # A directory made before the observer had an identity runs without a recording.
     missing = [f"{w.name}.{ext}" for w in fleet.identities() if w.name != OBSERVER for ext in ("pem", "key", "json5")
-               if not (path / f"{w.name}.{ext}").is_file()]
+               if not _is_file(path / f"{w.name}.{ext}")]
     if missing:
         raise UavRobotsError(f"--secure {path}: missing {', '.join(missing[:3])}")
     return fleet
+
+
+def _damaged(path: Path, why: str) -> UavRobotsError:
+    return UavRobotsError(f"--secure {path}: {MANIFEST} {why}: make the directory again with `uav-robots secure init`")
+
+
+def _fleet_from(data: Any, path: Path) -> Fleet:
+    """fleet.json's object, every field checked as `secure init` wrote it: a damaged or hand-edited
+    file is one line, never a traceback later."""
+    if type(data) is not dict:
+        raise _damaged(path, "is not a JSON object")
+    for name in (f.name for f in dataclasses.fields(Fleet)):
+        if name not in data:
+            raise _damaged(path, f"lacks {name!r}")
+    for name, kind in (("fleet", str), ("robots", int), ("groups", list), ("addresses", list), ("port", int),
+                       ("files_at", str)):
+        if type(data[name]) is not kind:   # not isinstance: true is no robot count
+            raise _damaged(path, f"field {name!r} is not a JSON {'integer' if kind is int else kind.__name__}")
+    groups, addresses = data["groups"], data["addresses"]
+    if not all(type(g) is list and g and all(type(r) is int for r in g) for g in groups):
+        raise _damaged(path, "field 'groups' is not lists of robot ids")
+    if not addresses or not all(type(a) is str for a in addresses):
+        raise _damaged(path, "field 'addresses' is not a list of host names")
+    try:
+        fleet = new_fleet(data["fleet"], data["robots"], groups, addresses, data["port"], Path(data["files_at"]))
+    except (UavRobotsError, ValueError) as exc:
+        raise _damaged(path, f"is not a fleet `secure init` makes ({str(exc)[:160]})") from None
+    if sorted(r for g in groups for r in g) != list(range(fleet.robots)):
+        raise _damaged(path, f"field 'groups' does not hold each robot 0..{fleet.robots - 1} once")
+    return dataclasses.replace(fleet, files_at=data["files_at"])
+
+
+def _is_file(path: Path) -> bool:
+    try:
+        return path.is_file()
+    except (OSError, ValueError):   # a name too long: no such file
+        return False
 
 
 def new_fleet(fleet: str, robots: int, groups: list[list[int]], addresses: list[str], port: int,
