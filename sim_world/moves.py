@@ -34,6 +34,24 @@ class Refusal:
                 "reason": self.reason, "collision": self.collision}
 
 
+def _safety_stops(why: dict[int, str], blockers: dict[int, set[int]], astray: set[int]) -> dict[int, int]:
+    """The refused robots stopped by a robot `astray` (one that did not move as its plan said for a
+    reason outside the plan: it slipped unseen and asked from the wrong cell, or it asked nothing, dead
+    or stalled), directly or through robots stopped so in turn: robot -> the robot astray. No plan put
+    them in conflict: the robot's own safety stops it, which the record keeps apart from collisions."""
+    cause = {r: r for r in astray}
+    changed = True
+    while changed:
+        changed = False
+        for r in why:
+            if r not in cause:
+                hit = sorted(b for b in blockers.get(r, ()) if b in cause)
+                if hit:
+                    cause[r] = cause[hit[0]]
+                    changed = True
+    return {r: c for r, c in cause.items() if r not in astray}
+
+
 @dataclass
 class MoveJudge:
     free: np.ndarray
@@ -42,8 +60,10 @@ class MoveJudge:
     tick: int = 0                                   # the last resolved tick
     record: dict[int, list[Cell]] = field(default_factory=dict)
     collisions: int = 0
+    safety_stops: int = 0         # moves refused because a robot that slipped unseen stood in the way
     refused: list[Refusal] = field(default_factory=list)
     skid_prob: float = 0.0        # `--fault slip:P`: a move ends elsewhere, and the robot is not told
+    skid_robots: dict[int, int] = field(default_factory=dict)   # `--fault skid:R@T`: from tick T, every move of R
     seed: int = 0
     skids: list[dict[str, Any]] = field(default_factory=list)
 
@@ -122,16 +142,25 @@ class MoveJudge:
                     why[r] = problem
                 else:
                     target[r] = to
-        self._settle(target, why)
+        blockers: dict[int, set[int]] = {}
+        self._settle(target, why, blockers)
+        # Robots that did not move as the plan said for a reason outside it: wrong about their cell
+        # (slipped unseen), or not asking at all (dead, stalled). Whoever they stop is safety-stopped.
+        stopped = _safety_stops(why, blockers, lost | (set(pos) - set(requests)))
 
         for r, (frm, to) in requests.items():
             if r not in pos:
                 continue
             if r in why:
-                self.collisions += r not in lost
-                self.refused.append(Refusal(tick, r, tuple(frm), tuple(to), why[r], r not in lost))
+                if r in stopped:
+                    how = "slipped there unseen" if stopped[r] in lost else "did not move"
+                    why[r] += f" (robot {stopped[r]} {how}: a safety stop)"
+                    self.safety_stops += 1
+                collision = r not in lost and r not in stopped
+                self.collisions += collision
+                self.refused.append(Refusal(tick, r, tuple(frm), tuple(to), why[r], collision))
                 out[r] = MoveResult(r, tick, False, pos[r], why[r])
-        actual = self._skid(tick, target) if self.skid_prob else target
+        actual = self._skid(tick, target) if self.skid_prob or self.skid_robots else target
         for r, to in actual.items():
             pos[r] = to
         for r, (frm, to) in requests.items():
@@ -143,8 +172,9 @@ class MoveJudge:
         self.tick = tick
         return out
 
-    def _settle(self, target: dict[int, Cell], why: dict[int, str]) -> None:
-        """Drop conflicting moves from `target` (reasons into `why`) until the rest is consistent."""
+    def _settle(self, target: dict[int, Cell], why: dict[int, str], blockers: dict[int, set[int]]) -> None:
+        """Drop conflicting moves from `target` (reasons into `why`, the robots in the way into
+        `blockers`) until the rest is consistent."""
         pos = self.positions
         changed = True
         while changed:
@@ -161,6 +191,7 @@ class MoveJudge:
                         other = stayer if stayer is not None else next(o for o in rs if o != r)
                         why[r] = (f"{cell} is taken by robot {other}" if stayer is not None
                                   else f"robots {sorted(rs)} all moving into {cell}")
+                        blockers.setdefault(r, set()).update([stayer] if stayer is not None else set(rs) - {r})
                         changed = True
                 for r in rs:
                     target.pop(r, None)
@@ -170,6 +201,7 @@ class MoveJudge:
                 s = origin.get(to)
                 if s is not None and s != r and target.get(s) == pos[r]:
                     clash[r] = f"swap with robot {s} between {pos[r]} and {to}"
+                    blockers.setdefault(r, set()).add(s)
                 frm = pos[r]
                 if self.connectivity == 8 and frm[0] != to[0] and frm[1] != to[1]:
                     # The other diagonal of the same 2x2 square, travelled either way.
@@ -178,6 +210,7 @@ class MoveJudge:
                         s = origin.get(start)
                         if s is not None and target.get(s) == end:
                             clash[r] = f"diagonal crossing with robot {s}"
+                            blockers.setdefault(r, set()).add(s)
             for r, reason in clash.items():
                 why[r] = reason
                 del target[r]
@@ -191,7 +224,8 @@ class MoveJudge:
         taken = {target.get(r, c) for r, c in pos.items()} | set(pos.values())
         actual = dict(target)
         for r, to in target.items():
-            if self._rng.random() >= self.skid_prob:
+            broken = tick >= self.skid_robots.get(r, tick + 1)
+            if not broken and self._rng.random() >= self.skid_prob:
                 continue
             frm = pos[r]
             sideways = [(frm[0] + dx, frm[1] + dy) for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1))]

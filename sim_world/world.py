@@ -34,6 +34,7 @@ from protocol.messages import (CameraRequest, MissionEnd, MoveAhead, MoveBatch, 
 from protocol.process import Lifecycle
 from protocol.transport import IncomingQuery, Transport, open_session
 from scenarios.landmarks import LandmarkSet
+from scenarios.limits import check_fleet, check_floor
 from scenarios.maps import place, resolve_map
 
 from .camera.model import DEFAULT_CAMERA_PRESET, camera_model_from, camera_options
@@ -68,10 +69,12 @@ class WorldConfig:
     zenoh_config: str | None = None
     move_batch_timeout_s: float = MOVE_BATCH_TIMEOUT_S
     slip: float = 0.0                 # probability that a move ends elsewhere, unknown to the robot
+    skids: dict[int, int] = field(default_factory=dict)   # robot -> tick from which all its moves end elsewhere
     end_timeout_s: float = 120.0      # after MissionEnd, the longest wait for the UAV to leave
 
     def check(self) -> None:
         Keys(self.fleet)
+        check_fleet(self.robots)
         if self.connectivity not in (4, 8):
             raise UavRobotsError(f"connectivity must be 4 or 8, got {self.connectivity}")
         if not self.cell_size_m > 0:
@@ -113,7 +116,7 @@ class Truth:
 
 
 def build_truth(cfg: WorldConfig) -> Truth:
-    name, free = resolve_map(cfg.map, cfg.seed)
+    name, free = resolve_map(cfg.map, cfg.seed, check_floor)
     if cfg.scen:
         agents = read_scen(cfg.scen, free, cfg.robots)
         starts, goals = [a.start for a in agents], [a.goal for a in agents]
@@ -187,6 +190,7 @@ class MoveDesk:
         if req.robot not in j.positions:
             sends.append((reply, j.slip(req.tick, req.robot, req.frm, req.to, f"unknown robot {req.robot}")))
         elif req.tick <= j.tick or (self.tick is not None and req.tick < self.tick):
+            self._heard_late(req.robot)
             prev = self.last.get(req.robot)
             if prev and prev[0].tick == req.tick and (prev[0].frm, prev[0].to) == (req.frm, req.to):
                 sends.append((reply, prev[1]))  # a resent request: the same answer again
@@ -218,6 +222,15 @@ class MoveDesk:
             self.waiting.discard(req.robot)
             if not self.waiting:
                 sends += self._resolve("")  # nobody is missing
+
+    def _heard_late(self, robot: int) -> None:
+        """A quiet robot asking for a tick already judged is back, one tick behind: from the tick
+        being collected on, it is waited for again. Left quiet, it was judged before its query
+        came, every tick, and refused "tick k is over" for ever (a stalled robot never rejoined)."""
+        if robot in self.quiet:
+            self.quiet.discard(robot)
+            if self.tick is not None and robot not in self.batch and robot not in self.gone:
+                self.waiting.add(robot)
 
     def robot_alive(self, robot: int, alive: bool) -> list[tuple[Reply, MoveResult]]:
         """Liveliness news; a tick waiting only for a robot that just vanished is resolved now."""
@@ -290,7 +303,7 @@ class World(Lifecycle):
         self.landmarks: LandmarkSet | None = None
         self.estimator: Any = None
         self.judge = MoveJudge(self.truth.free, dict(self.truth.starts), cfg.connectivity,
-                               skid_prob=cfg.slip, seed=cfg.seed)
+                               skid_prob=cfg.slip, skid_robots=dict(cfg.skids), seed=cfg.seed)
         self.desk: MoveDesk | None = None
         self.ahead: Any = None   # sim_world.ahead.AheadDesk, once started
         self.transport = transport
@@ -402,9 +415,9 @@ class World(Lifecycle):
             self._seq += 1
             return self._seq
 
-    def _decode(self, q: IncomingQuery, cls: type) -> Any:
+    def _decode(self, q: IncomingQuery, cls: type, entries: int | None = None) -> Any:
         try:
-            return decode(q.payload, cls)
+            return decode(q.payload, cls, entries)
         except ProtocolError as exc:
             self.warn(f"{q.key}: {exc}")
             q.finish()
@@ -454,7 +467,11 @@ class World(Lifecycle):
 
     def _on_move_batch(self, q: IncomingQuery) -> None:
         """A pool's moves in one query: each is judged like a MoveRequest, answered all at once."""
-        batch = self._decode(q, MoveBatch)
+        try:   # a key naming its robots bounds the batch's bytes by them (docs/protocol.md, Limits)
+            named = ids_of_move_key(self.keys, q.key)
+        except UavRobotsError:
+            named = None
+        batch = self._decode(q, MoveBatch, None if named is None else len(named))
         if batch is None or not self._asker_may_move(q, [r for r, _, _ in batch.moves]):
             return
         if not batch.moves:
@@ -480,8 +497,8 @@ class World(Lifecycle):
     def _on_move_ahead(self, key: str, payload: bytes) -> None:
         """A MoveAhead put: judged for the robots its key names only (as a move query, see Security)."""
         try:
-            msg = decode(payload, MoveAhead)
             allowed = ids_of_ahead_key(self.keys, key)
+            msg = decode(payload, MoveAhead, len(allowed))
         except (ProtocolError, UavRobotsError) as exc:
             self.warn(f"{key[:80]}: {exc}")
             return
@@ -524,7 +541,8 @@ class World(Lifecycle):
                 "robots": {str(r): list(c) for r, c in sorted(t.starts.items())},
                 "goals": [list(g) for g in t.goals],
                 "connectivity": self.cfg.connectivity, "cell_size_m": self.cfg.cell_size_m,
-                "slips": list(self.judge.skids), "vehicle": self.vehicle_dict()}
+                "slips": list(self.judge.skids), "safety_stops": self.judge.safety_stops,
+                "vehicle": self.vehicle_dict()}
 
     def vehicle_dict(self) -> dict[str, Any] | None:
         """What the simulated autopilot itself saw: independent of what the UAV agent reports."""
@@ -665,9 +683,10 @@ def add_world_arguments(p: argparse.ArgumentParser) -> None:
                         f"{DEFAULT_CAMERA_PRESET}) then keys over it, on the 12 MP drone camera (4000x3000, "
                         "90 deg), e.g. realistic,blur_sigma=2 or width=1280,height=960,noise_std=2 "
                         "(every key: README, 'The camera')")
-    p.add_argument("--fault", action="append", default=[], metavar="slip:P",
+    p.add_argument("--fault", action="append", default=[], metavar="slip:P|skid:ROBOT@TICK",
                    help="slip:P: each move ends, with probability P, in another free neighbour cell or where "
-                        "it started, and the robot is told it arrived (only a camera sees the truth)")
+                        "it started, and the robot is told it arrived (only a camera sees the truth); "
+                        "skid:ROBOT@TICK: from tick TICK every move of that robot does so (a broken drive)")
     p.add_argument("--move-timeout", type=float, default=MOVE_BATCH_TIMEOUT_S, metavar="S",
                    help="how long a tick's moves are collected before the missing robots are made to stay")
 
@@ -684,17 +703,42 @@ def add_ground_station_arguments(p: argparse.ArgumentParser) -> None:
                         "machine can reach it; 0.0.0.0 opens it to the network)")
 
 
-def slip_probability(faults: list[str]) -> float:
-    p = 0.0
+WORLD_FAULTS = ("slip:", "skid:")   # the --fault kinds the world injects; the others are the robots'
+
+
+def is_world_fault(spec: str) -> bool:
+    return spec.strip().startswith(WORLD_FAULTS)
+
+
+@dataclass(frozen=True)
+class WorldFaults:
+    slip: float = 0.0                                       # every move, with this probability
+    skids: dict[int, int] = field(default_factory=dict)     # robot -> the tick from which every move skids
+
+
+def world_faults(faults: list[str]) -> WorldFaults:
+    """slip:P (any move ends elsewhere with probability P) and skid:ROBOT@TICK (from tick TICK every
+    move of that robot ends elsewhere: a broken drive that keeps deviating); one line for a bad one."""
+    slip, skids = 0.0, {}
     for f in faults:
-        kind, _, value = f.partition(":")
+        kind, _, value = f.strip().partition(":")
+        if kind == "skid":
+            robot, at, tick = value.partition("@")
+            if not (robot.isdigit() and at and tick.isdigit() and int(tick) >= 1):
+                raise UavRobotsError(f"--fault {f!r}: give skid:ROBOT@TICK (ticks start at 1)")
+            skids[int(robot)] = int(tick)
+            continue
         try:
-            p = float(value)
+            slip = float(value)
         except ValueError:
-            p = -1.0
-        if kind != "slip" or not 0.0 <= p <= 1.0:
-            raise UavRobotsError(f"--fault {f!r}: the world takes slip:P with P in [0, 1]")
-    return p
+            slip = -1.0
+        if kind != "slip" or not 0.0 <= slip <= 1.0:
+            raise UavRobotsError(f"--fault {f!r}: the world takes slip:P with P in [0, 1] or skid:ROBOT@TICK")
+    return WorldFaults(slip, skids)
+
+
+def slip_probability(faults: list[str]) -> float:
+    return world_faults(faults).slip
 
 
 def config_from_args(args: argparse.Namespace) -> WorldConfig:
@@ -708,12 +752,13 @@ def config_from_args(args: argparse.Namespace) -> WorldConfig:
             raise UavRobotsError(f"--home {args.home!r} is not LAT,LON,ALT")
     mav = None if args.mavlink.lower() in ("none", "off", "") else args.mavlink
     camera_model_from(args.camera, DRONE_CAMERA)   # every value checked before anything starts
+    faults = world_faults(args.fault)
     cfg = WorldConfig(fleet=args.fleet, map=args.map, robots=args.robots, seed=args.seed, scen=args.scen,
                       connectivity=args.connectivity, cell_size_m=args.cell_size, home_lat=home[0],
                       home_lon=home[1], home_alt_m=home[2], mavlink=mav, time_scale=args.time_scale,
                       camera={**DRONE_CAMERA, **camera_options(args.camera)}, connect=args.connect, listen=args.listen,
                       zenoh_config=args.zenoh_config, move_batch_timeout_s=args.move_timeout,
-                      slip=slip_probability(args.fault), gcs=args.gcs, mavlink_key=args.mavlink_key,
+                      slip=faults.slip, skids=faults.skids, gcs=args.gcs, mavlink_key=args.mavlink_key,
                       mavlink_bind=args.mavlink_bind)
     cfg.check()
     return cfg

@@ -161,3 +161,40 @@ def test_no_two_robots_ever_share_a_cell(world):
             if a[0] != b[0] and a[1] != b[1]:
                 assert ((b[0], a[1]), (a[0], b[1])) not in ends and ((a[0], b[1]), (b[0], a[1])) not in ends
     assert all(len(c) == j.tick + 1 for c in j.record.values())
+
+
+def test_a_robot_stopped_by_one_that_slipped_unseen_is_a_safety_stop_not_a_collision():
+    # Robot 0 skidded to (2, 0) believing it is at (1, 0); robot 1's plan, right for the floor the
+    # robots believe in, moves it into (2, 0), and robot 2 follows robot 1. Both are stopped by the
+    # slip, neither by a plan in conflict: recorded, counted as safety stops, no collision.
+    j = judge({0: (2, 0), 1: (3, 0), 2: (4, 0)})
+    out = j.resolve(1, {0: ((1, 0), (1, 1)), 1: ((3, 0), (2, 0)), 2: ((4, 0), (3, 0))})
+    assert not out[0].accepted and "is at (2, 0), not at (1, 0)" in out[0].reason
+    assert not out[1].accepted and "slipped there unseen" in out[1].reason
+    assert not out[2].accepted and "robot 0 slipped there unseen" in out[2].reason
+    assert j.collisions == 0 and j.safety_stops == 2
+    assert [f.collision for f in j.refused] == [False, False, False]
+    # The same move into a robot that is where it believes is a collision, as before.
+    j = judge({0: (2, 0), 1: (3, 0)})
+    out = j.resolve(1, {0: ((2, 0), (2, 0)), 1: ((3, 0), (2, 0))})
+    assert not out[1].accepted and j.collisions == 1 and j.safety_stops == 0
+
+
+def test_a_broken_drive_skids_on_every_move_from_its_tick():
+    j = MoveJudge(OPEN.copy(), {0: (0, 2), 1: (5, 4)}, 4, skid_robots={0: 2})
+    j.resolve(1, {0: ((0, 2), (1, 2)), 1: ((5, 4), (5, 3))})
+    assert j.positions[0] == (1, 2) and not j.skids
+    for k in (2, 3):
+        start = j.positions[0]
+        out = j.resolve(k, {0: (start, (start[0] + 1, start[1]))})
+        assert out[0].accepted and out[0].cell == (start[0] + 1, start[1])   # told it arrived
+        assert j.positions[0] != (start[0] + 1, start[1])                     # it did not
+    assert [s["robot"] for s in j.skids] == [0, 0] and j.collisions == 0
+
+
+def test_a_robot_that_asks_nothing_stops_its_follower_safely():
+    # Robot 0 died (it asks nothing this tick); robot 1 follows it into the cell it was to leave.
+    j = judge({0: (2, 0), 1: (1, 0)})
+    out = j.resolve(1, {1: ((1, 0), (2, 0))})
+    assert not out[1].accepted and "robot 0 did not move: a safety stop" in out[1].reason
+    assert j.collisions == 0 and j.safety_stops == 1
