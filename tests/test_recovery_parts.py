@@ -15,20 +15,45 @@ def test_replan_goes_around_a_stopped_robot_and_reports_its_goal_unserved():
     working = {0: (0, 2), 2: (6, 0)}
     blocked = {1: (3, 2)}                       # stopped in the middle of the corridor
     rep = replan(free, goals, working, blocked, planner="lacam", connectivity=4, time_limit=10)
-    assert rep.ids == [0, 2]
-    paths = rep.result.paths
+    assert rep.ids == [0, 2] and not rep.stranded and not rep.pinned
     obstacles = free.copy()
     obstacles[2, 3] = False
-    assert validate(Problem(obstacles, [working[r] for r in rep.ids], rep.result.goals), paths) == []
+    paths = [rep.paths[r] for r in rep.ids]
+    assert validate(Problem(obstacles, [working[r] for r in rep.ids], [rep.goals[r] for r in rep.ids]), paths) == []
     assert all((3, 2) not in p for p in paths)
     assert len(rep.unserved) == 1
 
 
-def test_a_goal_under_a_stopped_robot_cannot_be_served():
+def test_a_robot_left_without_a_goal_is_held_and_the_others_planned():
+    # The goal (2, 2) is under a stopped robot: two working robots, one open goal. One is held where
+    # it stands (stranded), the nearer one gets the goal; before, the whole repair failed.
     free = np.ones((3, 3), dtype=bool)
-    with pytest.raises(PlanningError, match="2 working robots but only 1 goals"):
-        replan(free, [(0, 0), (2, 2)], {0: (1, 0), 1: (1, 2)}, {9: (2, 2)}, planner="lacam", connectivity=4,
-               time_limit=5)
+    rep = replan(free, [(0, 0), (2, 2)], {0: (1, 0), 1: (1, 2)}, {9: (2, 2)}, planner="lacam", connectivity=4,
+                 time_limit=5)
+    assert rep.goals == {0: (0, 0)} and list(rep.stranded) == [1]
+    assert "1 open goal(s)" in rep.stranded[1]
+
+
+def test_a_walled_in_robot_is_stranded_not_the_mission():
+    free = np.ones((5, 5), dtype=bool)
+    free[:, 2] = False                          # a wall: robot 1 on the left, every goal on the right
+    rep = replan(free, [(3, 0), (4, 4)], {0: (4, 0), 1: (0, 0)}, {}, planner="lacam", connectivity=4,
+                 time_limit=5)
+    assert rep.ids == [0] and "no open goal is reachable from (0, 0)" in rep.stranded[1]
+    with pytest.raises(PlanningError, match="no working robot can reach an open goal"):
+        replan(free, [(3, 0)], {1: (0, 0)}, {}, planner="lacam", connectivity=4, time_limit=5)
+
+
+def test_a_robot_verified_on_its_goal_stays_there():
+    # Robot 0 stands verified on (2, 1), a goal robot 1 is nearer to; the optimal assignment alone
+    # would swap their goals, undoing an arrival the camera already confirmed.
+    free = np.ones((3, 5), dtype=bool)
+    goals = [(2, 1), (4, 1)]
+    working = {0: (2, 1), 1: (1, 1)}
+    free[0, :] = free[2, :] = True
+    rep = replan(free, goals, working, {}, planner="lacam", connectivity=4, time_limit=5, pinned={0: (2, 1)})
+    assert rep.pinned == [0] and rep.paths[0] == [(2, 1)] and rep.goals[1] == (4, 1)
+    assert (2, 1) not in rep.paths[1]
 
 
 def test_on_goal():

@@ -63,10 +63,14 @@ def add_uav_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def uav_command(a: argparse.Namespace) -> int:
+    from scenarios.limits import check_fleet
+
     from .mission import Mission, MissionConfig, exit_code, split_report, summary
     from .progress import Progress
     from .planning.assignment import DEFAULT_ASSIGNMENT
 
+    if a.robots is not None:
+        check_fleet(a.robots)
     cfg = MissionConfig(fleet=a.fleet, robots=a.robots, listen=a.listen, connect=a.connect,
                         zenoh_config=a.zenoh_config, mavlink_url=a.mavlink, planner=a.planner,
                         assign=a.assign or DEFAULT_ASSIGNMENT, connectivity=a.connectivity,

@@ -17,12 +17,18 @@ from protocol.transport import Transport
 
 
 class FleetLink:
-    def __init__(self, transport: Transport, keys: Keys) -> None:
+    def __init__(self, transport: Transport, keys: Keys, members: int | None = None) -> None:
         self.transport, self.keys = transport, keys
         self.cv = threading.Condition()
+        # The fleet's robot ids (0 .. members-1; None: whoever shows up). On an open fleet anyone may
+        # put on any robot's key: what names a robot outside the fleet is dropped and counted, never
+        # reported (a stranger's Done for robots 0-63 put ids outside an 8-robot fleet in the report).
+        self.members = members
+        self.foreign = 0
         self.alive: set[int] = set()
         self.lost: set[int] = set()
         self.world_alive = False
+        self.world_seen = False
         self.observers: set[str] = set()        # recorders and views that said they listen
         self.acks: dict[int, PlanAck] = {}
         self.last_tick: dict[int, int] = {}
@@ -56,6 +62,18 @@ class FleetLink:
     def _reject(self, key: str, why: str) -> None:
         self._warn(f"ignored message on {key}: {why}")
 
+    @property
+    def world_gone(self) -> bool:
+        """The world's token was up and has vanished (the world died or left)."""
+        return self.world_seen and not self.world_alive
+
+    def _member(self, robot: int) -> bool:
+        return self.members is None or 0 <= robot < self.members
+
+    def _foreign(self, key: str, robots) -> None:
+        self.foreign += 1
+        self._reject(key, f"robot(s) {list(robots)[:5]} are not in this fleet of {self.members}")
+
     def _decode(self, key: str, payload: bytes, cls):
         rid = robot_id_from_key(key)
         try:
@@ -65,6 +83,9 @@ class FleetLink:
             return None
         if msg.robot != rid:
             self._reject(key, f"message for robot {msg.robot} sent on robot {rid}'s key")
+            return None
+        if not self._member(msg.robot):
+            self._foreign(key, [msg.robot])
             return None
         return msg
 
@@ -76,7 +97,7 @@ class FleetLink:
                 self.cv.notify_all()
 
     def _from_the_future(self, key: str, tick: int) -> bool:
-        if tick <= self.clock + 1:
+        if tick <= self.clock:   # the mission puts Tick(k) only after its clock says k
             return False
         self._reject(key, f"a state for tick {tick}, and the mission is at tick {self.clock}")
         return True
@@ -91,7 +112,7 @@ class FleetLink:
         """A pool's states of one tick: each judged as a RobotState, for the robots its key names only."""
         try:
             ids = set(ids_of_states_key(self.keys, key))
-            msg = decode(payload, StateBatch)
+            msg = decode(payload, StateBatch, len(ids))
         except (ProtocolError, UavRobotsError) as exc:
             self._reject(key, str(exc))
             return
@@ -100,6 +121,7 @@ class FleetLink:
         foreign = [s[0] for s in msg.states if s[0] not in ids]
         if foreign:
             self._reject(key, f"states of robot(s) {foreign[:5]} the key does not name")
+        ids = {r for r in ids if self._member(r)}
         with self.cv:
             # The entries as they are: a RobotState object per robot was a third of the time here.
             for robot, cell, status, _plan, error in msg.states:
@@ -134,6 +156,10 @@ class FleetLink:
         rid = robot_id_from_key(key)
         if rid is None:
             return
+        if not self._member(rid):
+            if alive:
+                self._foreign(key, [rid])
+            return
         with self.cv:
             if alive:
                 self.alive.add(rid)
@@ -147,6 +173,7 @@ class FleetLink:
     def _on_world_alive(self, key: str, alive: bool) -> None:
         with self.cv:
             self.world_alive = alive
+            self.world_seen |= alive
             self.cv.notify_all()
 
     def _on_observer_alive(self, key: str, alive: bool) -> None:

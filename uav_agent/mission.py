@@ -7,10 +7,12 @@ after the mission, to score it.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
 import secrets
+import sys
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -21,9 +23,9 @@ from typing import TYPE_CHECKING, Any
 from protocol.errors import MissionError, PlanningError, ProtocolError
 from protocol.grid import Cell
 from protocol.keys import Keys
-from protocol.messages import (CameraFrame, CameraRequest, MissionEnd, MissionEvent, MissionStatus, Plan, Record,
-                               RecordRequest, Tick, WorldInfo, WorldInfoRequest, decode, encode)
-from protocol.transport import Transport, open_session
+from protocol.messages import (PROTOCOL_VERSION, CameraFrame, CameraRequest, MissionEnd, MissionEvent, MissionStatus,
+                               Plan, Record, RecordRequest, Tick, WorldInfo, WorldInfoRequest, decode, encode)
+from protocol.transport import Transport, open_session, zenoh_config
 
 from .events import EventLog
 from .fleet import FleetLink
@@ -95,6 +97,16 @@ class _Clock:
         self._t = now
 
 
+def _access_control(cfg: MissionConfig) -> bool:
+    """Whether this UAV's router applies access control (`uav-robots run --secure`): a robot of protocol 1
+    then cannot move, since it asks on the plain P/world/move (docs/protocol.md, Versioning)."""
+    if not cfg.zenoh_config:
+        return False
+    from protocol.config import config_from_file
+    return bool(json.loads(zenoh_config(config_from_file(cfg.zenoh_config)).get_json("access_control/enabled")
+                           or "false"))
+
+
 def _transport(cfg: MissionConfig) -> Transport:
     # Alone, the UAV joins a router already on this machine (a world started first) or becomes it.
     return open_session("uav", cfg.listen, cfg.connect, cfg.zenoh_config, alone="either")
@@ -112,8 +124,20 @@ def _query(transport: Transport, key: str, request: Any, reply_type: type, what:
 
 
 EXIT_COMPLETED, EXIT_ABORTED, EXIT_DEGRADED = 0, 1, 3
-MAX_REPLANS = 10           # recoveries in one mission before the UAV gives up and lands
+# A robot named in this many repairs without a planned move it made between them keeps failing
+# (deviating, stalling, erring): it is quarantined, out of the plan for good, not allowed to sink
+# the others. A slipping robot fails now and then, and its moves between reset the count.
+MAX_STRIKES = 3
+# Repairs in a row that bring the fleet no nearer its goals (the repaired plan's lower bound is not
+# below the best one since the working robots last changed): then the robots they named are quarantined.
+MAX_FRUITLESS = 10
+# After the plan's last tick, robots out of the plan whose session is still up (stalled, not lost)
+# may come back; they show life only on a tick, so the fleet is ticked in place for this many tick
+# timeouts, a tick every HOLD_TICK_S.
+REJOIN_HOLD_TIMEOUTS = 2.0
+HOLD_TICK_S = 0.1
 DONE_WAIT_S = 5.0          # after the last tick: how long the Done flags may take to arrive
+STOP_LAND_TIMEOUT_S = 10.0  # stopped by a signal or left by the world: the landing is bounded by this
 
 
 @dataclass
@@ -123,6 +147,7 @@ class _Glance:
     tick: int
     shots: "Shots | None" = None
     off: list[int] | None = None       # robots off their planned cell at `tick`; None until judged
+    on_plan: list[int] = field(default_factory=list)   # robots on their planned cell at `tick`
     on_goal: list[int] = field(default_factory=list)   # robots on their goals after their last move
     took: float = 0.0                  # wall seconds from the request to the judgement
 
@@ -160,6 +185,8 @@ class Mission:
                                     "max_altitude_m": 0.0, "hover": None, "landed": False}
         self.frames: list[CameraFrame] = []
         self.events = EventLog()
+        self._secured = _access_control(cfg)    # a robot of protocol 1 cannot move: refused
+        self._older_said: set[int] = set()       # robots of an older protocol, said once each
         self.tick = 0                           # the last tick sent
         self.replans = 0
         self.monitored = 0
@@ -167,6 +194,12 @@ class Mission:
         self._monitor_work = 0.0                # wall seconds the monitoring images took, off the tick loop
         self.blocked: dict[int, Cell] = {}      # robots out of the plan (lost, stalled, faulty) -> their cell
         self.blocked_at: dict[int, float] = {}  # when each was taken out (a later sign of life brings it back)
+        self.out_reason: dict[int, str] = {}    # why each robot out of the plan is out
+        self.quarantined: dict[int, str] = {}   # robots out for good (they kept failing, or had no goal left)
+        self.strikes: dict[int, list[str]] = {}  # robot -> its faults since its last planned move ("deviation@9")
+        self._fruitless = 0                     # repairs in a row that brought the fleet no nearer its goals
+        self._best_lb: tuple[frozenset[int], float] | None = None   # (working robots, best lower bound)
+        self._fruitless_culprits: set[int] = set()
         self.verified: dict[int, bool] = {}
         self.confirmed: dict[int, str] = {}     # robot -> the plan under which an image after its last move showed it on its goal
         self._stops: list = []                  # arrival_tour.Stop: poses still to shoot for arrivals ...
@@ -283,6 +316,9 @@ class Mission:
     def _check_vehicle(self) -> None:
         if self.watch is not None and self.watch.fault:
             raise MissionError(f"vehicle: {self.watch.fault}")
+        if self.fleet.world_gone:
+            raise MissionError("the world went away (its alive/world token vanished): nobody judges the "
+                               "robots' moves or renders the camera")
 
     # ------------------------------------------------------------ phases
     def run(self) -> dict[str, Any]:
@@ -293,7 +329,7 @@ class Mission:
         try:
             self._token = self.transport.announce(self.keys.alive_uav)
             self.previewer = Previewer(lambda f: self.transport.put(self.keys.uav_frame, encode(f)))
-            self.fleet = FleetLink(self.transport, self.keys)
+            self.fleet = FleetLink(self.transport, self.keys, self.cfg.robots)
             self._await_observers()
             # Listening on MAVLink while the world starts: its vehicle's first heartbeat is not lost.
             self.flight = Flight(self.cfg.mavlink_url).open()
@@ -301,6 +337,7 @@ class Mission:
             self.fleet.wait_until(lambda: self.fleet.world_alive, self.cfg.startup_timeout_s,
                                   lambda: f"no world on fleet {self.cfg.fleet} within {self.cfg.startup_timeout_s:g} s")
             info = _query(self.transport, self.keys.world_info, WorldInfoRequest(seq=self._next()), WorldInfo, "info")
+            _check_floor(info)
             self.info = info
             from .perception import Landmarks
             self.landmarks = Landmarks.from_info(info)
@@ -339,6 +376,7 @@ class Mission:
             while True:
                 self._execute()
                 self._verify()
+                self._drop_the_gone()
                 back, off = self._rejoining(), self._off_goal()
                 if not back and not off:
                     break
@@ -351,10 +389,17 @@ class Mission:
             return self.report
         except Exception as exc:
             # A failed mission must not leave the drone hovering armed: land it, then report the failure.
-            self._event("abort", [], str(exc).splitlines()[0] if str(exc) else type(exc).__name__,
-                        "ended the mission and landed the vehicle")
+            why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            self._event("abort", [], why, "ended the mission and landed the vehicle")
+            try:
+                self._end(False, why)   # the robots and observers hear why, not just "aborted"
+            except Exception:  # noqa: BLE001 - the session may be what failed
+                pass
             self._abort_landing()
             self._abort_report(str(exc))
+            raise
+        except BaseException as exc:   # SIGTERM (protocol.process unwinds it as SystemExit) or SIGINT
+            self._stopped(exc)
             raise
         finally:
             if not self._ended:
@@ -529,7 +574,8 @@ class Mission:
             wait = self.cfg.startup_timeout_s
             self.fleet.wait_until(lambda: len(self.fleet.alive) >= expected, wait,
                                   lambda: f"only {len(self.fleet.alive)} of {expected} robots came alive "
-                                          f"(none more for {wait:g} s)",
+                                          f"(none more for {wait:g} s): robots "
+                                          f"{sorted(set(range(expected)) - self.fleet.alive)[:10]} missing",
                                   progress=lambda: len(self.fleet.alive), longest=STARTUP_LONGEST * wait)
         with self.fleet.cv:
             known = set(self.fleet.alive) or None
@@ -733,6 +779,7 @@ class Mission:
             if first:
                 raise
             self._event("dispatch", [r for r in ids if not acked(r)], str(exc))
+        self._older_protocols([r for r in ids if acked(r)])
         with self.fleet.cv:
             failed = [r for r in ids if not acked(r) or not self.fleet.acks[r].ok]
         refused = [(r, self.fleet.acks[r].error) for r in failed if acked(r)]
@@ -744,6 +791,28 @@ class Mission:
             self._reach_hover()
             self.clock.lap("dispatch")
         return failed
+
+    def _older_protocols(self, ids: list[int]) -> None:
+        """Robots whose PlanAck states an older protocol (docs/protocol.md, Versioning): under access control
+        refused, their ack made a refusal naming what they lack; otherwise served, said once per robot."""
+        with self.fleet.cv:
+            older = {r: self.fleet.acks[r].protocol for r in ids
+                     if self.fleet.acks[r].ok and self.fleet.acks[r].protocol < PROTOCOL_VERSION}
+            if self._secured:
+                for r, version in older.items():
+                    self.fleet.acks[r] = dataclasses.replace(self.fleet.acks[r], ok=False, error=(
+                        f"robot {r} keeps protocol {version}: it asks its moves on P/world/move, which access "
+                        f"control leaves unreachable; it needs protocol {PROTOCOL_VERSION} (docs/protocol.md, "
+                        "Versioning)"))
+                return
+        for r, version in older.items():
+            if r not in self._older_said:
+                self._older_said.add(r)
+                self._event("older-protocol", [r], f"robot {r} keeps protocol {version}: served, but it refuses a "
+                            "repair that does not start where it believes it stands (it reads no start_tick)"
+                            + (" and a diagonal step unless started with 8-connectivity (it reads no connectivity)"
+                               if self.cfg.connectivity == 8 else ""),
+                            "a repair it refuses takes it out of the plan")
 
     def _reach_hover(self) -> None:
         """Wait until the vehicle holds at the hover pose the survey sent it to; unless arrival
@@ -763,17 +832,25 @@ class Mission:
         period = 1.0 / self.cfg.tick_rate_hz if self.cfg.tick_rate_hz > 0 else 0.0
         self._exec_t0, self._exec_k0 = time.perf_counter(), self.tick
         next_at = time.monotonic()
-        while self.tick < self.plan.end_tick:
+        hold_until: float | None = None
+        while True:
+            pace = period
+            if self.tick >= self.plan.end_tick:
+                hold_until = self._hold_for_rejoin(hold_until)
+                if hold_until is None:
+                    break
+                pace = max(period, HOLD_TICK_S)
             self._check_vehicle()
-            if period:
-                next_at += period
+            if pace:
+                next_at += pace
                 time.sleep(max(0.0, next_at - time.monotonic()))
             plan = self.plan
             k = self.tick = self.tick + 1
+            with self.fleet.cv:   # a state for tick k is a robot's only once Tick(k) is out
+                self.fleet.clock = max(self.fleet.clock, k)
             self.transport.put(self.keys.tick, encode(Tick(k=k, ticks=plan.end_tick, plan_id=plan.plan_id,
                                                            batch_states=True, seq=self._next())))
-            faults = self.fleet.wait_tick(plan.ids, k, self.cfg.tick_timeout_s,
-                                          interrupt=lambda: self.watch.fault is not None)
+            faults = self.fleet.wait_tick(plan.ids, k, self.cfg.tick_timeout_s, interrupt=self._interrupted)
             self._check_vehicle()
             if not faults:
                 with self.fleet.cv:
@@ -793,6 +870,7 @@ class Mission:
             if faults:
                 self._recover(k, faults)
                 next_at = time.monotonic()
+                hold_until = None
             done = sum(1 for r in plan.ids if self._done_for(r, plan))
             self.progress.ticks(k, self.plan.end_tick, done, len(plan.ids))
             if k % 10 == 0 or k == self.plan.end_tick:
@@ -802,6 +880,36 @@ class Mission:
         self._last_looks()
         self.ticks = self.tick
         self.clock.lap("execute")
+
+    def _interrupted(self) -> bool:
+        """A tick's wait ends early when the vehicle or the world fails (both end the mission)."""
+        return (self.watch is not None and self.watch.fault is not None) or self.fleet.world_gone
+
+    def _hold_for_rejoin(self, until: float | None) -> float | None:
+        """After the plan's last tick: while robots out of the plan may still come back (their session
+        is up: stalled, not lost), the fleet is ticked in place, until REJOIN_HOLD_TIMEOUTS tick
+        timeouts have passed; a stall counted in ticks, or a robot frozen for a while, ends so. Returns
+        when the hold ends (None: it is over, or nobody is waited for)."""
+        with self.fleet.cv:
+            waited = sorted(r for r in self.blocked if r in self.fleet.alive and r not in self.quarantined)
+        if not waited:
+            return None
+        now = time.monotonic()
+        if until is None:
+            hold = REJOIN_HOLD_TIMEOUTS * self.cfg.tick_timeout_s
+            self._event("hold", waited, "out of the plan, their sessions still up",
+                        f"ticking the fleet in place for up to {hold:g} s for them to come back")
+            return now + hold
+        if now >= until:
+            self._event("hold-over", waited, "did not come back", "the mission ends without them")
+            return None
+        return until
+
+    def _forgive(self, robots) -> None:
+        """Robots an image shows on their planned cell start afresh: a robot's own states cannot clear
+        it (a skidding drive tells its robot it arrived)."""
+        for r in robots:
+            self.strikes.pop(r, None)
 
     def _plan_stops(self, plan: PlanState) -> None:
         """Where to confirm the arrivals of `plan` while it runs. A confirmation under an earlier
@@ -897,6 +1005,7 @@ class Mission:
             model = fusion.model()
             glance.on_goal = [r for r, c in model.robots.items() if r in arrived and tuple(c) == tuple(plan.goals[r])]
             glance.took = time.perf_counter() - t
+            glance.on_plan = [r for r, c in model.robots.items() if r in plan.paths and tuple(c) == plan.cell(r, k)]
             glance.off = sorted(r for r, c in model.robots.items() if r in plan.paths and tuple(c) != plan.cell(r, k))
 
         region = None
@@ -939,6 +1048,8 @@ class Mission:
             if g.plan_id != self.plan.plan_id:
                 continue
             self.confirmed.update((r, g.plan_id) for r in g.on_goal)
+            if self.strikes:
+                self._forgive(g.on_plan)
             if g.off:
                 self._event("camera-deviation", g.off, f"seen off its planned cell after tick {g.tick}")
                 off.update(g.off)
@@ -958,14 +1069,31 @@ class Mission:
             alive = set(self.fleet.alive)
         return sorted(r for r in self.plan.ids if not self.verified.get(r) and r in alive and r not in self.blocked)
 
+    def _drop_the_gone(self) -> None:
+        """Robots of the plan whose session went away after its last tick, and that no image shows on
+        their goal: lost, out of the plan (nothing to repair: they cannot move)."""
+        with self.fleet.cv:
+            gone = sorted(r for r in self.plan.ids if r not in self.fleet.alive and not self.verified.get(r)
+                          and r not in self.blocked)
+        if not gone:
+            return
+        self._event("robot-lost", gone, "liveliness gone after the last tick, not seen on its goal",
+                    "out of the plan")
+        for r in gone:
+            self.blocked[r] = tuple(self.fleet.cells.get(r) or self.plan.cell(r, self.tick))
+            self.blocked_at[r] = time.monotonic()
+            self.out_reason[r] = "lost: liveliness gone"
+
     def _rejoining(self) -> list[int]:
-        """Robots taken out of the plan that are back: alive, heard of since, no error."""
+        """Robots taken out of the plan that are back: alive, heard of since, no error, not quarantined."""
         with self.fleet.cv:
             return sorted(r for r in self.blocked if r in self.fleet.alive and r not in self.fleet.errors
+                          and r not in self.quarantined
                           and self.fleet.heard.get(r, 0.0) > self.blocked_at.get(r, 0.0))
 
     def _recover(self, k: int, faults: dict[str, list[int]]) -> None:
-        """Hold the fleet at tick k, look, take the robots that cannot move out of the plan, replan the rest."""
+        """Hold the fleet at tick k, look, take the robots that cannot move out of the plan, replan the rest.
+        A robot that keeps failing is quarantined; robots the camera verified on their goals stay there."""
         from .planning.registry import DEFAULT_PLANNER
         from .recovery import replan
 
@@ -979,13 +1107,12 @@ class Mission:
                     "stalled": f"no state for tick {k} within {self.cfg.tick_timeout_s:g} s",
                     "deviation": "reported a cell off its plan", "rejoin": "back and reporting"}[kind]
             self._event(f"robot-{kind}", robots, what, f"fleet held at tick {k}; fresh look; replan")
-        if self.replans > MAX_REPLANS:
-            raise MissionError(f"gave up after {MAX_REPLANS} replans (last: {', '.join(faults)})")
         self._status("recover", message=f"tick {k}: {', '.join(f'{a} {b}' for a, b in faults.items())}")
         # Hold at the tick boundary: the robots still working finish tick k before the look, so the
         # image shows a settled floor (a lost robot is noticed while the others are mid-tick).
         settling = [r for r in self.plan.ids if r not in faulty]
-        self.fleet.wait_tick(settling, k, self.cfg.tick_timeout_s, interrupt=lambda: self.watch.fault is not None)
+        self.fleet.wait_tick(settling, k, self.cfg.tick_timeout_s, interrupt=self._interrupted)
+        self._check_vehicle()
         seen = self._look()
         with self.fleet.cv:
             alive = set(self.fleet.alive)
@@ -994,6 +1121,8 @@ class Mission:
         for r in faults.get("rejoin", []):
             self.blocked.pop(r, None)
             self.blocked_at.pop(r, None)
+            self.out_reason.pop(r, None)
+        kind_of = {r: kind for kind, robots in faults.items() if kind != "rejoin" for r in robots}
         working: dict[int, Cell] = {}
         for r in self.ids:
             cell = seen.get(r) or reported.get(r) or self.blocked.get(r)
@@ -1002,40 +1131,101 @@ class Mission:
                     self.blocked[r] = tuple(cell)
                     if r not in self.blocked_at or r in faulty:
                         self.blocked_at[r] = time.monotonic()
+                if r not in self.quarantined:
+                    self.out_reason[r] = ("lost: liveliness gone" if r not in alive else
+                                          kind_of.get(r) or self.out_reason.get(r) or "not seen by the fresh look")
             else:
                 working[r] = seen[r]
-        named = {r for robots in faults.values() for r in robots}
-        also = sorted(r for r in working if r in self.plan.paths and r not in named and working[r] != self.plan.cell(r, k))
+        also = sorted(r for r in working if r in self.plan.paths and r not in kind_of
+                      and working[r] != self.plan.cell(r, k))
         if also:
             self._event("camera-deviation", also, f"the fresh look found them off their plan after tick {k}",
                         "replanned from where they are")
         unseen = [r for r in self.ids if r not in seen]
         if unseen:
             self._event("unseen", unseen, "not seen by the fresh look", "kept out of the plan")
+        # Unseen robots count too: one the camera keeps missing would otherwise rejoin and be left out
+        # again at every tick.
+        culprits = {**{r: "unseen" for r in unseen if r in self.plan.paths}, **kind_of,
+                    **{r: "deviation" for r in also}}
+        # Seen on its plan's cell, or back and seen: a fresh start (a robot that stalled once and came
+        # back is not one slip away from quarantine).
+        self._forgive([r for r in self.strikes if r in working and r not in culprits and
+                       (r in faults.get("rejoin", []) or r in self.plan.paths and working[r] == self.plan.cell(r, k))])
+        for r in self._strike(k, culprits):
+            if r in working:
+                self.blocked[r] = working.pop(r)
+                self.blocked_at[r] = time.monotonic()
         lost = sorted(set(self.ids) - alive)
         t_look = time.perf_counter() - t
         t = time.perf_counter()
+        pid = self.plan.plan_id
+        pinned = {r: self.goal_of[r] for r in working
+                  if self.confirmed.get(r) == pid and working[r] == tuple(self.goal_of.get(r, ()))}
         try:
             rep = replan(self.model_free, list(self.model.goals), working, self.blocked,
                          planner=self.cfg.planner or DEFAULT_PLANNER, connectivity=self.cfg.connectivity,
-                         time_limit=self.cfg.time_limit_s, seed=self.cfg.seed, plan=self._plan_mission)
+                         time_limit=self.cfg.time_limit_s, seed=self.cfg.seed, plan=self._plan_mission,
+                         pinned=pinned)
         except PlanningError as exc:
             # The mission's input was fine; what happened to its fleet ends it: a failed mission
             # (exit 1), not a bad input (exit 2), as the UAV alone used to say.
             raise MissionError(f"no repair after tick {k}: {exc}") from None
+        for r, why in rep.stranded.items():
+            self._quarantine(r, f"stranded: {why}", working.pop(r))
         # A goal under a stopped robot that had reached it is served, not lost.
         self.unserved = [tuple(g) for g in rep.unserved
                          if not any(self.goal_of.get(r) == tuple(g) and c == tuple(g) for r, c in self.blocked.items())]
-        new = PlanState(secrets.token_hex(4), k, dict(zip(rep.ids, map(list, rep.result.paths))),
-                        dict(zip(rep.ids, rep.result.goals)))
+        self._progress(rep, culprits)
+        new = PlanState(secrets.token_hex(4), k, rep.paths, rep.goals)
         self._event("replan", rep.ids, f"plan {new.plan_id} from tick {k} for {len(rep.ids)} robots "
-                                       f"({len(self.blocked)} out: {sorted(self.blocked)}, lost {lost}); "
-                                       f"{len(self.unserved)} goal(s) unserved",
+                                       f"({len(rep.pinned)} kept on their verified goals; {len(self.blocked)} out: "
+                                       f"{sorted(self.blocked)}, lost {lost}); {len(self.unserved)} goal(s) unserved",
                     f"looked in {t_look:.2f} s, replanned in {time.perf_counter() - t:.3f} s")
         self.clock.timings["recover_look"] = round(self.clock.timings.get("recover_look", 0.0) + t_look, 4)
         failed = self._dispatch(new)
         if failed:
             self._recover(k, {"error": failed})
+
+    def _strike(self, k: int, culprits: dict[int, str]) -> list[int]:
+        """Count each robot's fault; returns the robots quarantined now: MAX_STRIKES faults without a
+        planned move between, or named by MAX_FRUITLESS repairs in a row that got the fleet no nearer."""
+        out = []
+        for r, kind in culprits.items():
+            self.strikes.setdefault(r, []).append(f"{kind}@{k}")
+            if len(self.strikes[r]) >= MAX_STRIKES and r not in self.quarantined:
+                out.append(r)
+                self._quarantine(r, f"{len(self.strikes[r])} faults in a row, no image showing it on its plan "
+                                    "between: " + ", ".join(self.strikes[r]))
+        if self._fruitless >= MAX_FRUITLESS:
+            named = sorted((self._fruitless_culprits | set(culprits)) - set(self.quarantined))
+            for r in named:
+                out.append(r)
+                self._quarantine(r, f"named by {self._fruitless} repairs in a row that brought the fleet "
+                                    "no nearer its goals")
+            self._fruitless, self._fruitless_culprits = 0, set()
+        return out
+
+    def _quarantine(self, robot: int, why: str, cell: Cell | None = None) -> None:
+        """Out of the plan for good: its cell an obstacle, its goal given to another, never rejoined."""
+        self.quarantined[robot] = why
+        self.out_reason[robot] = f"quarantined: {why}"
+        if cell is not None:
+            self.blocked[robot] = tuple(cell)
+            self.blocked_at[robot] = time.monotonic()
+        self._event("robot-quarantined", [robot], why, "out of the plan for good; the others go on")
+
+    def _progress(self, rep, culprits: dict[int, str]) -> None:
+        """Whether this repair got the fleet nearer its goals than any before it with the same working
+        robots (a lower bound below the best); repairs that do are not failures."""
+        working = frozenset(rep.ids)
+        best = self._best_lb
+        if best is None or best[0] != working or rep.lower_bound < best[1]:
+            self._best_lb = (working, rep.lower_bound)
+            self._fruitless, self._fruitless_culprits = 0, set()
+        else:
+            self._fruitless += 1
+            self._fruitless_culprits |= set(culprits)
 
     def _verify(self) -> None:
         """Believe a Done only when an image taken after it shows the robot on its goal."""
@@ -1105,7 +1295,9 @@ class Mission:
         n, ok = len(self.ids), sum(self.verified.values())
         if outcome == "completed":
             return f"all {n} robots verified on their goals"
-        return f"{ok}/{n} robots verified on their goals; out of the plan: {sorted(self.blocked)}"
+        out = "; ".join(f"{r} {self.out_reason.get(r, '')}".rstrip() for r in sorted(self.blocked)[:10])
+        out += f"; ... {len(self.blocked) - 10} more" if len(self.blocked) > 10 else ""
+        return f"{ok}/{n} robots verified on their goals; out of the plan: {out or 'none'}"
 
     def _end(self, completed: bool, reason: str) -> None:
         if self._ended:
@@ -1116,7 +1308,26 @@ class Mission:
         self.transport.put(self.keys.mission_end, encode(MissionEnd(completed=completed, reason=reason,
                                                                     seq=self._next())))
 
-    def _abort_landing(self) -> None:
+    def _stopped(self, exc: BaseException) -> None:
+        """Stopped from outside: the report first (a second signal must not lose it), then a bounded
+        landing, then the report again with the landing's outcome. Further signals wait meanwhile:
+        the stop is bounded by STOP_LAND_TIMEOUT_S and the record's query."""
+        why = "stopped by SIGTERM" if isinstance(exc, SystemExit) else "interrupted (SIGINT)"
+        held = _hold_signals()
+        try:
+            self._event("abort", [], why, "ended the mission, wrote the report, landed the vehicle")
+            try:
+                self._end(False, why)
+            except Exception:  # noqa: BLE001 - the session may already be gone
+                pass
+            self._abort_report(why, record_timeout_s=2.0)
+            if self.flight is not None and self.uav["armed"] and not self.uav["landed"]:
+                self._abort_landing(STOP_LAND_TIMEOUT_S)
+                self._abort_report(why, record_timeout_s=2.0)
+        finally:
+            _restore_signals(held)
+
+    def _abort_landing(self, timeout_s: float = ABORT_LAND_TIMEOUT_S) -> None:
         if self.watch is not None:
             self.watch.expect_airborne(False)
         if self.flight is None or not self.uav["armed"] or self.uav["landed"]:
@@ -1124,7 +1335,7 @@ class Mission:
         try:
             self._end(False, "mission aborted")
             self.progress.phase("abort", "landing the vehicle")
-            self.flight.land(timeout_s=ABORT_LAND_TIMEOUT_S)
+            self.flight.land(timeout_s=timeout_s)
             if self.pose_feed is not None:
                 self.pose_feed.flying(False)
             self.uav["landed"] = True
@@ -1138,9 +1349,12 @@ class Mission:
         self.uav["landed"] = True
         self.clock.lap("land")
 
-    def _record(self) -> Record | None:
+    def _record(self, timeout_s: float = QUERY_TIMEOUT_S) -> Record | None:
+        if hasattr(self, "fleet") and self.fleet.world_gone:
+            return None
         try:
-            return _query(self.transport, self.keys.record, RecordRequest(seq=self._next()), Record, "record")
+            return _query(self.transport, self.keys.record, RecordRequest(seq=self._next()), Record, "record",
+                          timeout_s)
         except MissionError:
             return None
 
@@ -1157,6 +1371,8 @@ class Mission:
                                                    f"{vehicle.get('armed')}, {vehicle.get('landed_state')}")
             crashes = [text for _, text in vehicle.get("events", []) if "hit the ground" in text]
             if crashes:
+                # A touchdown that hard is a crash, not a landing, whatever the UAV believed.
+                self.uav["landed"], self.uav["crashed"] = False, True
                 self._event("vehicle", [], f"the vehicle's own record: {crashes[0]}")
         seen = getattr(self, "seen_at_end", {})
         for rid, cells in record.executed.items():
@@ -1177,16 +1393,20 @@ class Mission:
             "outcome": outcome,
             "reason": reason,
             "robots": len(ids),
-            "done": sorted(self.fleet.done) if hasattr(self, "fleet") else [],
+            "done": sorted(r for r in self.fleet.done if r in ids) if hasattr(self, "fleet") else [],
+            "foreign_messages": self.fleet.foreign if hasattr(self, "fleet") else 0,
             "verified": {str(r): self.verified.get(r, False) for r in ids},
             "verified_during_execution": sorted(r for r, pid in self.confirmed.items()
                                                 if self.plan is not None and pid == self.plan.plan_id),
             "lost": sorted(self.blocked),
+            "out_of_plan": {str(r): self.out_reason.get(r, "") for r in sorted(self.blocked)},
+            "quarantined": sorted(self.quarantined),
             "unserved_goals": [list(g) for g in self.unserved],
             "replans": self.replans,
             "monitor_images": self.monitored,
             "events": self.events.as_dicts(),
             "collisions": record.collisions if record else None,
+            "safety_stops": (record.truth or {}).get("safety_stops", 0) if record else None,
             "refused": record.refused if record else [],
             "ticks": self.tick,
             "plan": plan_to_dict(result, model.free, ids=ids) if result is not None else None,
@@ -1217,14 +1437,51 @@ class Mission:
         if self.cfg.out is not None:
             write_outputs(self.cfg.out, self.report, self.frames, self.model.free, self.first_result, self.ids)
 
-    def _abort_report(self, reason: str) -> None:
-        """An aborted mission still leaves its report: completed false, the reason, the events."""
+    def _abort_report(self, reason: str, record_timeout_s: float = QUERY_TIMEOUT_S) -> None:
+        """An aborted mission still leaves its report: completed false, the reason, the events, and the
+        robots an image showed on their goals after their last move (verified, whatever came after)."""
         try:
-            self._fill_report(self._record(), "aborted", reason)
+            if self.plan is not None and not self.verified:
+                self.verified = {r: self.confirmed.get(r) == self.plan.plan_id for r in getattr(self, "ids", [])}
+            record = self._record(record_timeout_s)
+            if record is not None:
+                self._cross_check(record)
+            self._fill_report(record, "aborted", reason)
             if self.cfg.out is not None:
                 write_report(self.cfg.out, self.report)
         except Exception as exc:  # noqa: BLE001 - the report must not hide the abort's own error
             self.progress.phase("abort", f"could not write the report: {exc}")
+
+
+def _check_floor(info: WorldInfo) -> None:
+    """A floor larger than one survey covers ends the mission before the vehicle flies."""
+    from protocol.errors import UavRobotsError
+    from scenarios.limits import check_floor
+
+    try:
+        check_floor(info.width, info.height, "the world's floor")
+    except UavRobotsError as exc:
+        raise MissionError(str(exc)) from None
+
+
+def _hold_signals() -> list:
+    """SIGTERM and SIGINT ignored for a while (only the main thread may say so; elsewhere nothing)."""
+    import signal
+
+    held = []
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        try:
+            held.append((sig, signal.signal(sig, signal.SIG_IGN)))
+        except ValueError:
+            pass
+    return held
+
+
+def _restore_signals(held: list) -> None:
+    import signal
+
+    for sig, handler in held:
+        signal.signal(sig, handler)
 
 
 def _registration_summary(frames) -> dict[str, Any]:
@@ -1268,13 +1525,25 @@ def split_report(report: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]
     return compact, details, plan
 
 
+def _write_whole(path: Path, data: str | bytes) -> None:
+    """The file whole or not at all (a full disk must not leave half a report standing): written beside,
+    then renamed over (`.partial-*` left behind by a kill is removed by the launcher)."""
+    tmp = path.with_name(f".partial-{path.name}")
+    try:
+        (tmp.write_bytes if isinstance(data, bytes) else tmp.write_text)(data)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
 def write_report(out: Path, report: dict[str, Any]) -> None:
     out.mkdir(parents=True, exist_ok=True)
     compact, details, plan = split_report(report)
-    (out / "report.json").write_text(json.dumps(compact, indent=1))
-    (out / DETAILS).write_text(json.dumps(details, separators=(",", ":")))
+    _write_whole(out / "report.json", json.dumps(compact, indent=1))
+    _write_whole(out / DETAILS, json.dumps(details, separators=(",", ":")))
     if plan is not None:
-        (out / PLAN).write_text(json.dumps(plan, separators=(",", ":")))
+        _write_whole(out / PLAN, json.dumps(plan, separators=(",", ":")))
 
 
 def load_report(out: Path) -> dict[str, Any]:
@@ -1296,15 +1565,21 @@ def write_outputs(out: Path, report: dict[str, Any], frames: list[CameraFrame], 
     """report.json (+ details.json, plan.json), overhead.png (a captured image), paths.png and replay.gif."""
     from . import visualize
 
-    out.mkdir(parents=True, exist_ok=True)
-    if frames:
-        (out / "overhead.png").write_bytes(frames[len(frames) // 2].png)
-    visualize.write_png(out / "paths.png", visualize.draw_paths(free, result.paths, result.goals))
+    write_report(out, report)   # first: the pictures are worth less than the record
     executed = {int(k): [tuple(c) for c in v] for k, v in report["executed"].items()}
     goals = {rid: tuple(g) for rid, g in zip(ids, result.goals)}
-    if max(free.shape) <= GIF_MAX_SIDE:   # larger floors: replay.mp4 (uav-robots run --out) is readable
-        visualize.replay_gif(out / "replay.gif", free, executed, goals)
-    write_report(out, report)
+    pictures = [("overhead.png", lambda: _write_whole(out / "overhead.png", frames[len(frames) // 2].png)
+                 if frames else None),
+                ("paths.png", lambda: visualize.write_png(out / "paths.png",
+                                                          visualize.draw_paths(free, result.paths, result.goals))),
+                # larger floors: replay.mp4 (uav-robots run --out) is readable
+                ("replay.gif", lambda: visualize.replay_gif(out / "replay.gif", free, executed, goals)
+                 if max(free.shape) <= GIF_MAX_SIDE else None)]
+    for name, write in pictures:
+        try:
+            write()
+        except OSError as exc:
+            print(f"uav: could not write {out / name}: {exc.strerror or exc}", file=sys.stderr, flush=True)
 
 
 def summary(report: dict[str, Any], out: Path | None) -> str:
@@ -1314,7 +1589,9 @@ def summary(report: dict[str, Any], out: Path | None) -> str:
     outcome = report.get("outcome", "completed" if report["completed"] else "failed").upper()
     lines = [
         f"mission {outcome}: {sum(verified.values())}/{report['robots']} robots verified on their goals by the "
-        f"camera in {report['ticks']} ticks, collisions {report['collisions']}",
+        f"camera in {report['ticks']} ticks, collisions {report['collisions']}"
+        + (f" (safety stops {report['safety_stops']}: robots stopped by one that failed or slipped unseen)"
+           if report.get("safety_stops") else ""),
     ]
     if report.get("plan"):
         m = report["plan"]["metrics"]

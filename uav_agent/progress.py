@@ -25,10 +25,13 @@ class Progress:
         if not self.enabled:
             return
         stamp = f"[{time.perf_counter() - self._t0:6.2f}s]"
-        if self._console is not None:
-            self._console.print(f"{stamp} {text}", highlight=False)
-        else:
-            print(f"{stamp} {text}", file=self.stream, flush=True)
+        try:
+            if self._console is not None:
+                self._console.print(f"{stamp} {text}", highlight=False)
+            else:
+                print(f"{stamp} {text}", file=self.stream, flush=True)
+        except OSError:   # the launcher that read this pipe is gone: the mission goes on without lines
+            self.enabled = False
 
     def phase(self, name: str, detail: str = "") -> None:
         text = f"{name}" + (f": {detail}" if detail else "")
