@@ -18,7 +18,8 @@ def _add_run(sub) -> None:
                         "or 'random:width=..,height=..,density=..' (default: warehouse-small)")
     p.add_argument("--robots", type=int, default=8, help="number of robots (default 8)")
     p.add_argument("--seed", type=int, default=0, help="seed of the placement (and random maps)")
-    p.add_argument("--out", help="directory for report.json, overhead.png, paths.png, replay.gif, logs/")
+    p.add_argument("--out", help="directory for report.json, overhead.png, paths.png, replay.gif, mission.mcap, "
+                                 "replay.mp4, report.html, logs/ (an earlier run's there are removed first)")
     add_planning_arguments(p)
     p.add_argument("--time-scale", type=float, default=10.0,
                    help="simulated seconds per wall second for the vehicle (default 10)")
@@ -32,7 +33,9 @@ def _add_run(sub) -> None:
     p.add_argument("--fault", action="append", default=[], metavar="SPEC",
                    help="inject a fault (repeatable): crash:ROBOT@TICK (the robot dies at that tick), "
                         "stall:ROBOT@TICK:TICKS (it stops moving and reporting that long), liar:ROBOT "
-                        "(it raises Done at its start and stops)")
+                        "(it raises Done at its start and stops); the world's: slip:P (any move ends "
+                        "elsewhere with probability P), skid:ROBOT@TICK (from that tick every move of the "
+                        "robot does: it keeps deviating)")
     p.add_argument("--monitor-every", type=int, default=None, metavar="K",
                    help="while the robots move, the UAV takes an image every K ticks and checks every robot "
                         "it sees against the plan (default: automatic, at most 20 %% of the execution time; 0: never)")

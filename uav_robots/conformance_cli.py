@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 from protocol.errors import UavRobotsError
@@ -46,7 +47,9 @@ def conformance_command(args: argparse.Namespace) -> int:
 
     suite, option = SUITES[args.kind]
     path = Path(conformance.__file__).resolve().parent / suite
-    argv = [sys.executable, "-m", "pytest", str(path), "-q", "-p", "no:cacheprovider",
-            *([option, cmd] if cmd else []), *rest]
-    # pytest's own exit code: 0 all rules kept, 1 a rule broken, 2-4 usage problems.
-    return subprocess.run(argv, stdin=subprocess.DEVNULL).returncode
+    with tempfile.TemporaryDirectory(prefix="uav-robots-conformance-") as base:
+        # A temporary directory of its own: a numbered one would delete those of other pytest runs.
+        argv = [sys.executable, "-m", "pytest", str(path), "-q", "-p", "no:cacheprovider", f"--basetemp={base}",
+                *([option, cmd] if cmd else []), *rest]
+        # pytest's own exit code: 0 all rules kept, 1 a rule broken, 2-4 usage problems.
+        return subprocess.run(argv, stdin=subprocess.DEVNULL).returncode

@@ -6,6 +6,7 @@ key, payload) to a list, so a slow consumer never holds back a publisher; decodi
 from __future__ import annotations
 
 import secrets
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -49,9 +50,13 @@ class Observer:
             return self.samples[i:]
 
     def close(self) -> list[Sample]:
-        """Stop listening; every sample received, in arrival order."""
-        if self._transport is not None:
-            self._transport.close()
-            self._transport = None
+        """Stop listening; every sample received, in arrival order. Must be called: an open session's
+        thread keeps the process from exiting."""
+        transport, self._transport = self._transport, None
+        if transport is not None:
+            try:
+                transport.close()
+            except Exception as exc:  # noqa: BLE001 - what it recorded is kept all the same
+                print(f"uav-robots: the observer's session did not close cleanly: {exc}", file=sys.stderr, flush=True)
         with self._lock:
             return list(self.samples)

@@ -196,6 +196,7 @@ class Recording:
     images: list[tuple[int, bytes]] = field(default_factory=list)                 # (log time ns, JPEG)
     poses: list[tuple[int, dict[str, float]]] = field(default_factory=list)       # (log time ns, UAV position)
     tick_times: list[tuple[int, int]] = field(default_factory=list)              # (log time ns, k)
+    horizon: int = 0                                          # the last tick of any recorded plan
     end: dict[str, Any] | None = None
     counts: dict[str, int] = field(default_factory=dict)
 
@@ -250,6 +251,7 @@ def _take(rec: Recording, topic: str, body: dict[str, Any], log_time: int) -> No
         rec.goals[body["robot"]] = tuple(body["goal"])
         rec.paths[body["robot"]] = [tuple(c) for c in body["path"]]
         rec.starts.setdefault(body["robot"], tuple(body["path"][0]))
+        rec.horizon = max(rec.horizon, body.get("start_tick", 0) + len(body["path"]) - 1)
     else:   # /fleet/tick
         rec.ticks = max(rec.ticks, body["k"])
         rec.tick_times.append((log_time, body["k"]))
@@ -278,3 +280,40 @@ def drawn_recording(samples: Iterable[Sample], fleet_prefix: str, rows: list[str
             continue
         _take(rec, topic[0], body, s.time_ns)
     return rec
+
+
+def last_tick(report: dict[str, Any] | None, rec: Recording) -> int:
+    """The last tick a replay draws: the mission's, as the UAV and the world recorded it (the report's
+    `ticks`, each robot's executed path, the first plan's makespan); without a report of the UAV's, the
+    last tick of the recorded plans. Never what a Tick or a state claims: one forged Tick(k=100000)
+    would otherwise cost a 100,001-frame video."""
+    known: list[int] = []
+    if report:
+        if isinstance(report.get("ticks"), int):
+            known.append(report["ticks"])
+        known += [len(cells) - 1 for cells in (report.get("executed") or {}).values() if cells]
+        known += [len(r["path"]) - 1 for r in (report.get("plan") or {}).get("robots", []) if r.get("path")]
+    return max(known) if known else rec.horizon
+
+
+def bound(rec: Recording, last: int) -> int:
+    """Drops from `rec` every state and tick claiming a tick after `last`; returns how many."""
+    dropped = 0
+    for rid in list(rec.cells):
+        by_tick = rec.cells[rid]
+        late = [t for t in by_tick if t > last]
+        for t in late:
+            del by_tick[t]
+        dropped += len(late)
+        if not by_tick:
+            del rec.cells[rid]
+    kept = [(ns, k) for ns, k in rec.tick_times if k <= last]
+    dropped += len(rec.tick_times) - len(kept)
+    rec.tick_times = kept
+    rec.ticks = max([k for _, k in kept] + [t for by_tick in rec.cells.values() for t in by_tick] + [0])
+    return dropped
+
+
+def dropped_line(dropped: int, last: int) -> str:
+    return (f"uav-robots: {dropped} message(s) claiming a tick after the mission's last ({last}: the report's "
+            f"ticks, the executed paths, the plans) left out of the video")

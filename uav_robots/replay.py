@@ -6,6 +6,8 @@ a cell's size on screen.
 """
 from __future__ import annotations
 
+import shutil
+import threading
 from pathlib import Path
 
 import cv2
@@ -56,8 +58,14 @@ def _positions(rec: Recording) -> dict[int, list[tuple[int, int]]]:
     return out
 
 
-def render(rec: Recording, path: Path, fps: int = FPS) -> tuple[int, int, int]:
-    """Write the video; returns (frames, width, height)."""
+class Cancelled(Exception):
+    """The caller no longer wants the video (`render`'s `cancel` was set)."""
+
+
+def render(rec: Recording, path: Path, fps: int = FPS, cancel: threading.Event | None = None) -> tuple[int, int, int]:
+    """Write the video, frames 0..rec.ticks (bound them first: `recording.bound`); returns (frames, width,
+    height). OSError if the file is not whole (OpenCV says nothing when a frame is not written:
+    a full disk); Cancelled, between two frames, once `cancel` is set."""
     (x0, y0, x1, y1), s, r = layout(rec)
     free = rec.free[y0:y1, x0:x1]
     base = np.where(free[..., None], np.array(FLOOR, np.uint8), np.array(SHELF, np.uint8))
@@ -87,8 +95,12 @@ def render(rec: Recording, path: Path, fps: int = FPS) -> tuple[int, int, int]:
         raise RuntimeError(f"OpenCV cannot write {path} (mp4v)")
     blank = np.full((height, width, 3), 255, np.uint8)
     blank[:mh, :mw] = base
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)   # not a warning per frame unwritten
     try:
         for t in range(rec.ticks + 1):
+            if cancel is not None and cancel.is_set():
+                raise Cancelled()
             frame = blank.copy()
             for rid in ids:
                 trail = at[rid][max(0, t - TRAIL):t + 1]
@@ -108,7 +120,31 @@ def render(rec: Recording, path: Path, fps: int = FPS) -> tuple[int, int, int]:
             writer.write(frame)
     finally:
         writer.release()
+        cv2.utils.logging.setLogLevel(level)
+    if not whole_mp4(path):
+        raise OSError(f"{path.name} is incomplete: OpenCV could not write every frame "
+                      f"({shutil.disk_usage(path.parent).free // 2**20} MB free there)")
     return rec.ticks + 1, width, height
+
+
+def whole_mp4(path: Path) -> bool:
+    """Whether an MP4 file is whole: its top-level boxes end where the file ends, the index (moov,
+    written last) among them."""
+    size, pos, kinds = path.stat().st_size, 0, set()
+    with open(path, "rb") as f:
+        while pos < size:
+            f.seek(pos)
+            head = f.read(16)
+            n = int.from_bytes(head[:4], "big") if len(head) >= 8 else 0
+            if n == 1 and len(head) == 16:
+                n = int.from_bytes(head[8:16], "big")
+            elif n == 0 and len(head) >= 8:
+                n = size - pos
+            if n < 8:
+                return False
+            kinds.add(head[4:8])
+            pos += n
+    return pos == size and b"moov" in kinds
 
 
 def _label_layout(label: str, r: int, scale: float, colour) -> tuple[str, int, int, float, tuple[int, int, int]]:

@@ -2,9 +2,11 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
+from typing import Any
 
-from protocol.errors import UavRobotsError
+from protocol.errors import MissionError, UavRobotsError
 
 
 def add_replay_parser(subparsers) -> argparse.ArgumentParser:
@@ -21,7 +23,8 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def replay_command(args: argparse.Namespace) -> int:
-    from .recording import MCAP, read_mcap
+    from .recording import MCAP, bound, dropped_line, last_tick, read_mcap
+    from .outputs import partial
     from .replay import VIDEO, render
 
     directory = Path(args.dir)
@@ -31,7 +34,17 @@ def replay_command(args: argparse.Namespace) -> int:
         rec = read_mcap(directory / MCAP)
     except Exception as exc:  # noqa: BLE001 - a damaged or foreign file is bad input
         raise UavRobotsError(f"{directory / MCAP}: not a readable uav-robots recording: {exc}") from None
-    frames, w, h = render(rec, directory / VIDEO)
+    last = last_tick(_report(directory), rec)
+    dropped = bound(rec, last)
+    if dropped:
+        print(dropped_line(dropped, last), file=sys.stderr, flush=True)
+    draft = partial(directory / VIDEO)    # an earlier replay.mp4 stays until the new one is whole
+    try:
+        frames, w, h = render(rec, draft)
+        draft.replace(directory / VIDEO)
+    except OSError as exc:
+        draft.unlink(missing_ok=True)
+        raise MissionError(f"could not write {directory / VIDEO}: {exc.strerror or exc}") from None
     print(f"{directory / VIDEO}: {frames} frames, {w}x{h} px, ticks 0-{rec.ticks}, {len(rec.cells)} robots",
           flush=True)
     if args.view is not None:
@@ -49,3 +62,13 @@ def replay_command(args: argparse.Namespace) -> int:
         finally:
             server.close()
     return 0
+
+
+def _report(directory: Path) -> dict[str, Any] | None:
+    """The run's report with its details and plan, if it has a readable one: what bounds the replay."""
+    from uav_agent.mission import load_report
+
+    try:
+        return load_report(directory)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None

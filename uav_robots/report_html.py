@@ -134,6 +134,8 @@ th,td{{border:1px solid #ccc;padding:3px 8px;text-align:left}} .keys{{font-size:
 
 
 def write(out: Path, report: dict[str, Any]) -> Path:
+    from .outputs import write_atomic
+
     path = out / REPORT_HTML
-    path.write_text(render(report))
+    write_atomic(path, render(report))
     return path

@@ -5,7 +5,8 @@ once the UAV reports its landing phase, and encoding the 450 mission's 250 frame
 which the user waited for after the summary. So the launcher renders the video from the samples
 received by then while the vehicle descends and the processes stop, and keeps it only if the whole
 recording draws the same (no sample the video draws came after the draft's, the same map);
-otherwise it renders again.
+otherwise it renders again. The draft draws up to the last tick of the plans recorded so far (the
+report, which bounds the final video, comes later: `recording.last_tick`), never a tick a message claims.
 """
 from __future__ import annotations
 
@@ -38,7 +39,10 @@ class VideoAhead:
         self._key, self._prefix = keys.mission_status, keys.prefix
         self._seen = 0
         self._drawn_from = 0          # the samples the draft was rendered from: the first so many
+        self._last = 0                # the last tick the draft draws
+        self._claimed = 0             # the last tick its samples claim (beyond `_last`: left out)
         self._thread: threading.Thread | None = None
+        self._cancel = threading.Event()
         self._done = False
 
     def poll(self) -> None:
@@ -65,7 +69,10 @@ class VideoAhead:
         try:
             # From the samples as the recording will hold them, not through a draft file: writing
             # and reading one back took as long as drawing 1,000 robots.
-            replay.render(recording.drawn_recording(samples, self._prefix, self._rows), self._out / DRAFT_VIDEO)
+            rec = recording.drawn_recording(samples, self._prefix, self._rows)
+            self._last, self._claimed = rec.horizon, rec.ticks
+            recording.bound(rec, self._last)
+            replay.render(rec, self._out / DRAFT_VIDEO, cancel=self._cancel)
             self._done = True
         except Exception:  # noqa: BLE001 - only a head start: the video is rendered again at the end
             self._done = False
@@ -77,10 +84,12 @@ class VideoAhead:
         self._thread.join(JOIN_TIMEOUT_S)
         return not self._thread.is_alive() and self._done
 
-    def take(self, samples: list, rows: list[str] | None, path: Path) -> bool:
+    def take(self, samples: list, rows: list[str] | None, path: Path, last: int | None = None) -> bool:
         """True if the draft draws the recording of `samples` (every sample, in arrival order) on the
-        map `rows`, and is now `path`; the draft is gone either way."""
-        fresh = self._finish() and rows == self._rows and not any(
+        map `rows` up to tick `last` (None: the draft's own bound), and is now `path`; the draft is gone
+        either way."""
+        same_ticks = last is None or last == self._last or min(last, self._last) >= self._claimed
+        fresh = self._finish() and rows == self._rows and same_ticks and not any(
             recording.drawn(self._prefix, s.key) for s in samples[self._drawn_from:])
         video = self._out / DRAFT_VIDEO
         if fresh:
@@ -90,6 +99,7 @@ class VideoAhead:
         return False
 
     def discard(self) -> None:
-        """No video wanted (the outputs are temporary): let the draft end, remove it."""
+        """No video wanted (temporary outputs, a stop): the draft ends at its next frame and is removed."""
+        self._cancel.set()
         self._finish()
         (self._out / DRAFT_VIDEO).unlink(missing_ok=True)

@@ -34,6 +34,10 @@ LIFTOFF_ALT_M = 0.1  # above this altitude the land detector calls it airborne
 YAW_RATE_RAD_S = math.radians(90.0)
 GRAVITY_M_S2 = 9.81
 TERMINAL_SPEED_M_S = 20.0
+# A touchdown faster than this is a crash, not a landing (PX4 lands at MPC_LAND_SPEED, 0.7 m/s, and its
+# land detector calls nothing faster than LNDMC_Z_VEL_MAX, 0.5 m/s, landed): the journal records
+# "hit the ground at X m/s", falling (motors off) or flown into the ground alike.
+HARD_TOUCHDOWN_M_S = 3.0
 PHYSICS_PERIOD_S = 0.02  # wall time between steps
 TILT_TAU_S = 0.2         # attitude loop's lag: how long a change of velocity takes to fly
 MAX_TILT_DEG = 20.0      # PX4 allows MPC_TILTMAX_AIR = 45; a survey flight stays well under it
@@ -149,6 +153,7 @@ class Dynamics:
         self._sim_time = 0.0
         self._airborne = False
         self._max_alt = 0.0
+        self._impact: float | None = None   # a fall's speed where it reached the ground, this step
 
     # --- readings ----------------------------------------------------------------------
 
@@ -225,7 +230,7 @@ class Dynamics:
             prev_vel = self._vel
             self._vel = tuple((a - b) / dt for a, b in zip(self._pos, prev)) if dt > 0 else (0.0, 0.0, 0.0)
             self._step_attitude(dt, prev_vel)
-            pilot.on_contact(self._detect_contact())
+            pilot.on_contact(self._detect_contact(prev_vel[2]))
             self._max_alt = max(self._max_alt, -self._pos[2])
 
     def _step_attitude(self, dt: float, prev_vel: Vec3) -> None:
@@ -252,17 +257,26 @@ class Dynamics:
         vz = min(TERMINAL_SPEED_M_S, self._vel[2] + GRAVITY_M_S2 * dt)
         self._pos = (self._pos[0], self._pos[1], min(0.0, self._pos[2] + vz * dt))
         if self._pos[2] >= 0.0:
-            self._journal.event(f"hit the ground at {vz:.1f} m/s")
+            self._impact = vz
 
-    def _detect_contact(self) -> Contact | None:
-        """PX4-like land detector: airborne above LIFTOFF_ALT_M, landed on touching the ground."""
+    def _detect_contact(self, descent_before: float = 0.0) -> Contact | None:
+        """PX4-like land detector: airborne above LIFTOFF_ALT_M, landed on touching the ground; a touchdown
+        faster than HARD_TOUCHDOWN_M_S is journaled as a crash first."""
         alt = -self._pos[2]
         if not self._airborne and alt > LIFTOFF_ALT_M:
             contact = Contact.LIFTOFF
         elif self._airborne and alt <= GROUND_EPS_M:
             contact = Contact.TOUCHDOWN
         else:
+            self._impact = None
             return None
         self._airborne = contact is Contact.LIFTOFF
+        if contact is Contact.TOUCHDOWN:
+            # A fall's speed at the ground; flown, the descent of this step or the one before (the
+            # last step may cover only the last centimetres, at the full speed).
+            speed = self._impact if self._impact is not None else max(self._vel[2], descent_before)
+            if speed > HARD_TOUCHDOWN_M_S:
+                self._journal.event(f"hit the ground at {speed:.1f} m/s (a crash: over {HARD_TOUCHDOWN_M_S:g} m/s)")
+        self._impact = None
         self._journal.event(contact.value)
         return contact
