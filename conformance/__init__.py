@@ -7,6 +7,7 @@ only through `protocol` (Zenoh on loopback), never through robot internals.
 """
 from __future__ import annotations
 
+import json
 import os
 import shlex
 import signal
@@ -39,14 +40,14 @@ def free_endpoint() -> str:
 
 
 class Hub:
-    """A Zenoh router session on a free loopback port, for one fleet."""
+    """A Zenoh router session on a free loopback port (or on `endpoint`), for one fleet."""
 
-    def __init__(self, fleet: str | None = None, attempts: int = 5) -> None:
+    def __init__(self, fleet: str | None = None, attempts: int = 5, endpoint: str | None = None) -> None:
         self.fleet = fleet or new_fleet_name()
         self.keys = Keys(self.fleet)
         last: Exception | None = None
-        for _ in range(attempts):
-            self.endpoint = free_endpoint()
+        for _ in range(1 if endpoint else attempts):
+            self.endpoint = endpoint or free_endpoint()
             try:
                 self.transport: Transport = ZenohTransport(hub_config([self.endpoint]), "conformance hub")
                 return
@@ -97,6 +98,7 @@ class FakeUav(Waiter):
     dones: dict[int, list[Done]] = field(default_factory=dict)
     garbage: list[str] = field(default_factory=list)
     batches: list[tuple[str, int]] = field(default_factory=list)   # (key, tick) of each StateBatch
+    batch_seqs: list[int] = field(default_factory=list)              # seq of each StateBatch
 
     def __post_init__(self) -> None:
         Waiter.__init__(self)
@@ -139,6 +141,7 @@ class FakeUav(Waiter):
             return
         with self.cv:
             self.batches.append((key, batch.tick))
+            self.batch_seqs.append(batch.seq)
             for robot, cell, status, plan_id, error in batch.states:
                 if robot not in ids:
                     self.garbage.append(f"{key}: a state of robot {robot}, which the key does not name")
@@ -207,12 +210,55 @@ class FakeUav(Waiter):
             h.close()
 
 
+class Wire(Waiter):
+    """Every put of the robot(s) under test as the router got it: (key, payload, congestion control), in order.
+
+    Read from the router's own session, below `protocol.transport`: the congestion control a put was
+    sent with travels with it (docs/protocol.md, QoS) and only a Zenoh sample shows it.
+    """
+    SUFFIXES = ("/ack", "/state", "/done", "/states")
+
+    def __init__(self, hub: "Hub") -> None:
+        super().__init__()
+        self.puts: list[tuple[str, bytes, str]] = []
+        self._ahead = f"{hub.keys.prefix}/world/ahead/"
+        self._sub = hub.transport.session.declare_subscriber(f"{hub.keys.prefix}/**", self._on_sample)
+
+    def _on_sample(self, sample: Any) -> None:
+        key = str(sample.key_expr)
+        if key.endswith(self.SUFFIXES) or key.startswith(self._ahead):
+            with self.cv:
+                self.puts.append((key, sample.payload.to_bytes(), str(sample.congestion_control).rsplit(".", 1)[-1]))
+                self.cv.notify_all()
+
+    def order(self) -> list[tuple[str, int]]:
+        """(key, tick or -1) of each put, in the order the router got them."""
+        out = []
+        with self.cv:
+            for key, payload, _cc in self.puts:
+                try:
+                    tick = json.loads(payload).get("tick", -1)
+                except (ValueError, AttributeError):
+                    tick = -1
+                out.append((key, tick if isinstance(tick, int) else -1))
+        return out
+
+    def count(self, key: str, tick: int = -1) -> int:
+        """How many puts on `key` (naming `tick`, -1 for any) the router got."""
+        return sum(1 for item in self.order() if item[0] == key and (tick == -1 or item[1] == tick))
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
 @dataclass
 class FakeWorld(Waiter):
     """A move service that accepts every request unless told to refuse (robot, tick) pairs.
 
     It trusts a robot's first `frm` as its position, and then keeps its own
-    idea of where the robot is, which it reports in every answer.
+    idea of where the robot is, which it reports in every answer. Told so, it answers late
+    (`delay_s`), never (`hold`: the query stays open), or changes its answers (`reply_with` for a
+    `MoveResult`, `batch_with` for the entries of a `MoveBatchResult`).
     """
     transport: Transport
     keys: Keys
@@ -225,9 +271,17 @@ class FakeWorld(Waiter):
     garbage: bool = False      # answer with bytes that do not decode
     aheads: list[tuple[str, MoveAhead]] = field(default_factory=list)   # (key, message) of each MoveAhead put
     move_keys: list[tuple[str, list[int]]] = field(default_factory=list)  # (key, robots) of each move query
+    queries: list[tuple[str, int, list[int], bytes]] = field(default_factory=list)  # (key, tick, robots, payload)
+    delay_s: float = 0.0       # answer each query this long after it came, from another thread
+    hold: bool = False         # answer nothing and keep the query open until close()
+    reply_with: Callable[[MoveResult], MoveResult] | None = None
+    batch_with: Callable[[list[tuple]], list[tuple]] | None = None
+    judge_ahead: bool = True   # answer the moves put ahead (MovesJudged) when their Tick comes
 
     def __post_init__(self) -> None:
         Waiter.__init__(self)
+        self._held: list[IncomingQuery] = []
+        self._timers: list[threading.Timer] = []
         self._handle = self.transport.serve(self.keys.move, self._on_move)
         self._by_identity = self.transport.serve(self.keys.moves_by_identity, self._on_move)
         # Moving ahead: moves are kept until their Tick, then judged and answered per sender.
@@ -250,6 +304,8 @@ class FakeWorld(Waiter):
             tick = decode(payload, Tick)
         except ProtocolError:
             return   # the suite's own garbage on the tick key
+        if not self.judge_ahead:
+            return
         with self.cv:
             latest: dict[int, tuple[str, str, tuple, tuple]] = {}
             for key, msg in self.aheads:   # the last put for a robot and tick wins
@@ -280,19 +336,35 @@ class FakeWorld(Waiter):
             with self.cv:
                 self.batch_seqs.append(batch.seq)
                 self.move_keys.append((q.key, [m[0] for m in batch.moves]))
+                self.queries.append((q.key, batch.tick, [m[0] for m in batch.moves], q.payload))
             results = [self._judge(MoveRequest(robot=r, tick=batch.tick, frm=a, to=b)) for r, a, b in batch.moves]
-            reply = encode(MoveBatchResult(tick=batch.tick, results=[
-                (res.robot, res.accepted, res.cell, res.reason) for res in results]))
+            entries = [(res.robot, res.accepted, res.cell, res.reason) for res in results]
+            reply = encode(MoveBatchResult(tick=batch.tick, results=self.batch_with(entries) if self.batch_with
+                                           else entries))
         else:
             req = decode(q.payload, MoveRequest)
             with self.cv:
                 self.request_seqs.append((req.robot, req.seq))
                 self.move_keys.append((q.key, [req.robot]))
-            reply = encode(self._judge(req))
-        if self.answer:
-            q.reply(b'{"type":"MoveResult","v":1,"robot":"seven"}' if self.garbage else reply)
-        else:
+                self.queries.append((q.key, req.tick, [req.robot], q.payload))
+            res = self._judge(req)
+            reply = encode(self.reply_with(res) if self.reply_with else res)
+        if self.hold:
+            with self.cv:
+                self._held.append(q)
+            return
+        if not self.answer:
             q.finish()
+            return
+
+        def send() -> None:
+            q.reply(b'{"type":"MoveResult","v":1,"robot":"seven"}' if self.garbage else reply)
+        if self.delay_s > 0:
+            timer = threading.Timer(self.delay_s, send)
+            self._timers.append(timer)
+            timer.start()
+        else:
+            send()
 
     def _judge(self, req: MoveRequest) -> MoveResult:
         with self.cv:
@@ -310,6 +382,12 @@ class FakeWorld(Waiter):
             return [r for r in self.requests if r.robot == robot and r.tick == tick]
 
     def close(self) -> None:
+        for timer in self._timers:
+            timer.cancel()
+        with self.cv:
+            held, self._held = self._held, []
+        for q in held:
+            q.finish()
         self._token.close()
         self._handle.close()
         self._by_identity.close()

@@ -7,11 +7,19 @@
 """
 from __future__ import annotations
 
+import tempfile
+from pathlib import Path
+
 import pytest
 
 from conformance import DEFAULT_POOL_CMD, DEFAULT_ROBOT_CMD, FakeUav, FakeWorld, Hub, start_robot, stop_process
+from conformance.rules import newer_rules, since_of_test
 from conformance.uav_harness import DEFAULT_UAV_CMD, PLACEHOLDERS, UavOptions, uav_command
 from protocol.errors import MissionError
+from protocol.messages import PROTOCOL_VERSION
+
+ROBOT_SUITE = "test_robot_conformance"
+_PROTOCOL = pytest.StashKey[tuple[int, str]]()   # the robot's protocol version, and how the suite knows it
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -31,6 +39,9 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     group.addoption("--robot-id", type=int, default=7, help="the robot id to start it with")
     group.addoption("--robot-timeout", type=float, default=10.0,
                     help="seconds a robot gets to come alive (and to answer anything)")
+    group.addoption("--robot-protocol", type=int, default=None, metavar="N",
+                    help="the protocol version the robot keeps (default: the `protocol` its first PlanAck states; "
+                         "none stated: 1); it is held to the rules of that version, and every PlanAck must state it")
     d = UavOptions()
     group.addoption("--uav-cmd", default=DEFAULT_UAV_CMD,
                     help=f"command line of the UAV under test; placeholders {PLACEHOLDERS} "
@@ -78,6 +89,71 @@ def ahead_cmd(request: pytest.FixtureRequest) -> str:
 def pool_ahead_cmd(request: pytest.FixtureRequest) -> str:
     return _optional_cmd(request, "--robot-pool-ahead-cmd", DEFAULT_POOL_CMD + " --moves ahead",
                          "no --robot-pool-ahead-cmd given: a pool moving ahead is optional, and not checked")
+
+
+@pytest.fixture(scope="session")
+def robot_protocol(request: pytest.FixtureRequest) -> int:
+    """The protocol version the robot under test keeps: given, or read from the first PlanAck of a robot
+    started for that alone (docs/protocol.md, Versioning)."""
+    config = request.config
+    given = config.getoption("--robot-protocol")
+    if given is not None:
+        config.stash[_PROTOCOL] = (given, "given with --robot-protocol")
+        return given
+    rid, timeout = config.getoption("--robot-id"), config.getoption("--robot-timeout")
+    with tempfile.TemporaryDirectory() as tmp, Hub() as hub:
+        uav, world = FakeUav(hub.transport, hub.keys), FakeWorld(hub.transport, hub.keys)
+        raw: list[bytes] = []
+        sub = hub.transport.subscribe(hub.keys.ack(rid), lambda _key, payload: raw.append(payload))
+        proc = start_robot(config.getoption("--robot-cmd"), rid, hub.fleet, hub.endpoint, Path(tmp) / "probe.log")
+        try:
+            ack = None
+            if uav.until(lambda: rid in uav.alive or proc.poll() is not None, timeout) and proc.poll() is None:
+                uav.plan(rid, "p-protocol", [(2, 2), (3, 2)])
+                ack = uav.ack_for(rid, "p-protocol", timeout)
+        finally:
+            stop_process(proc)
+            sub.close()
+            uav.close()
+            world.close()
+    if ack is None:   # the tests say what is wrong; hold it to every rule meanwhile
+        config.stash[_PROTOCOL] = (PROTOCOL_VERSION, "no PlanAck to read it from: held to every rule")
+        return PROTOCOL_VERSION
+    stated = any(b'"protocol"' in payload for payload in raw[:1])
+    config.stash[_PROTOCOL] = (ack.protocol, "stated in its first PlanAck" if stated else "its first PlanAck states none")
+    return ack.protocol
+
+
+@pytest.fixture(autouse=True)
+def _rules_of_its_version(request: pytest.FixtureRequest) -> None:
+    """A robot is held to the rules of the protocol version it keeps: a test of a newer rule is skipped."""
+    if request.module.__name__.rsplit(".", 1)[-1] != ROBOT_SUITE:
+        return
+    version = request.getfixturevalue("robot_protocol")
+    test = request.node.originalname
+    if version < since_of_test("robot", test):
+        newer = [r.id for r in newer_rules("robot", version) if test in r.tests]
+        pytest.skip(f"{', '.join(newer)}: newer than protocol {version}, which the robot keeps")
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus: int, config: pytest.Config) -> None:
+    """One line: which protocol the robot keeps, and what that leaves unchecked."""
+    if _PROTOCOL not in config.stash:
+        return
+    version, how = config.stash[_PROTOCOL]
+    terminalreporter.write_line(protocol_line(version, how))
+
+
+def protocol_line(version: int, how: str) -> str:
+    newer = newer_rules("robot", version)
+    if not newer:
+        extra = f", newer than this suite's {PROTOCOL_VERSION}: held to protocol {PROTOCOL_VERSION}'s rules" \
+            if version > PROTOCOL_VERSION else ": held to every robot rule"
+        return f"robot protocol: the implementation keeps protocol {version} ({how}){extra}"
+    return (f"robot protocol: the implementation keeps protocol {version} ({how}): not held to the rules of "
+            f"protocol {version + 1} and later ({', '.join(r.id for r in newer)}, skipped); a protocol "
+            f"{PROTOCOL_VERSION} UAV refuses it on a secured fleet (`--secure`: access control leaves the plain "
+            f"`P/world/move` it asks on unreachable) and serves it otherwise (docs/protocol.md, Versioning)")
 
 
 @pytest.fixture

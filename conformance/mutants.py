@@ -20,7 +20,8 @@ import time
 from typing import Callable
 
 from protocol.errors import ProtocolError
-from protocol.messages import MoveAhead, Plan, PlanAck, RobotState, Tick, decode, encode
+from protocol.messages import (MAX_GRID_SIDE, PROTOCOL_VERSION, Done, MoveAhead, MoveResult, Plan, PlanAck,
+                               RobotState, Tick, decode, encode, wire_fields)
 
 Patch = Callable[[], None]
 
@@ -181,9 +182,11 @@ def _robot_patches() -> dict[str, Patch]:
 
     ask_world = RobotPool._ask_world
 
-    def first_robot_only(self, k, steps):
-        first = min(steps)
-        return ask_world(self, k, {first: steps[first]})
+    def a_request_each(self, k, steps):
+        out = {}
+        for r, st in steps.items():
+            out.update(ask_world(self, k, {r: st}))
+        return out
 
     on_judged = RobotPool._on_judged
 
@@ -222,6 +225,266 @@ def _robot_patches() -> dict[str, Patch]:
     def ignore_sigterm(self):
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
+    # ---- the rules an independent robot broke unnoticed (R38..)
+    def put_raw(change: Callable[[object, str, bytes], None]):
+        """A `_put` whose RobotStates go out through `change(self, key, payload)` instead."""
+        def put(self, rid, key, msg):
+            if not isinstance(msg, RobotState):
+                return pool_put(self, rid, key, msg)
+            self._seq[rid] += 1
+            object.__setattr__(msg, "seq", self._seq[rid])
+            change(self, key, encode(msg))
+        return put
+
+    def seq_twice(self, key, payload):
+        self.transport.put(key, payload.replace(b'"v":1,', b'"v":1,"seq":0,', 1))
+
+    def put_dropping(self, key, payload):
+        import zenoh
+        self.transport.session.put(key, payload, congestion_control=zenoh.CongestionControl.DROP)
+
+    def ask_twice(self, k, steps):
+        out = ask_world(self, k, steps)
+        missing = {r: st for r, st in steps.items() if r not in out}
+        return {**out, **ask_world(self, k, missing)} if missing else out
+
+    def wait_out(self, k, steps):
+        start = time.monotonic()
+        out = ask_world(self, k, steps)
+        if len(out) < len(steps):
+            time.sleep(max(0.0, self.move_timeout_s - (time.monotonic() - start)))
+        return out
+
+    def any_tick(self, robot, tick, replies):
+        for raw in replies:
+            try:
+                res = decode(raw, MoveResult)
+            except ProtocolError:
+                continue
+            if res.robot == robot:
+                return _replace(res, tick=tick)
+        return None
+
+    def missing_moved(self, k, steps):
+        out = ask_world(self, k, steps)
+        if len(steps) > 1:
+            for r, st in steps.items():
+                out.setdefault(r, MoveResult(robot=r, tick=k, accepted=True, cell=st.to))
+        return out
+
+    real_decode = agent.decode
+
+    def strict_decode(payload, cls, *rest):
+        msg = real_decode(payload, cls, *rest)
+        known = {"type", "v"} | {f.name for f in wire_fields(cls)}
+        unknown = set(json.loads(bytes(payload).partition(b"\0")[0])) - known
+        if unknown:
+            raise ProtocolError(f"{cls.__name__}: fields it does not know: {sorted(unknown)}")
+        return msg
+
+    def rewritten(change: Callable[[object], object]):
+        """A decode that first rewrites the JSON it is given (a laxer reader than the document's)."""
+        def lax(payload, cls, *rest):
+            try:
+                body = json.loads(bytes(payload))
+            except (ValueError, UnicodeDecodeError):
+                return real_decode(payload, cls, *rest)
+            return real_decode(json.dumps(change(body)).encode(), cls, *rest)
+        return lax
+
+    def ints(x):
+        if isinstance(x, float) and x.is_integer():
+            return int(x)
+        if isinstance(x, list):
+            return [ints(v) for v in x]
+        if isinstance(x, dict):
+            return {k: ints(v) for k, v in x.items()}
+        return x
+
+    def clipped(body):
+        def clip(c):
+            return [min(v, MAX_GRID_SIDE - 1) if type(v) is int else v for v in c] if isinstance(c, list) else c
+        if isinstance(body, dict) and body.get("type") == "Plan":
+            body = {**body, "goal": clip(body.get("goal")),
+                    "path": [clip(c) for c in body.get("path", [])] if isinstance(body.get("path"), list)
+                    else body.get("path")}
+        return body
+
+    def from_tick_0(self, plan):
+        ack = on_plan(self, plan)
+        if ack.ok and not plan.start_tick:
+            self.base = 0
+        return ack
+
+    def stay_anywhere(self, tick, plan_id=None):
+        if self.plan is None and self.cell is None:
+            from robot_agents.robot import Step
+            return Step(tick, (0, 0), (0, 0))
+        return target(self, tick, plan_id)
+
+    def first_start_known(self, plan):
+        ack = on_plan(self, plan)
+        if ack.ok and self.cell is None:
+            self.cell = tuple(plan.path[0])
+        return ack
+
+    def remember_ids(self, plan):
+        held = self.__dict__.setdefault("_mutant_held", set())
+        if plan.plan_id in held and (self.plan is None or plan.plan_id != self.plan.plan_id):
+            return self._ack(plan.plan_id, False, f"plan id {plan.plan_id} was held before")
+        ack = on_plan(self, plan)
+        if ack.ok:
+            held.add(plan.plan_id)
+        return ack
+
+    def stepping_on_other_plans(self, tick, plan_id=None):
+        if self.plan is not None and plan_id is not None and plan_id != self.plan.plan_id and self.state == "ready":
+            self.state = "stepping"
+        return target(self, tick, plan_id)
+
+    def refused_is_error(self, result, plan_id=None):
+        state, done = on_result(self, result, plan_id)
+        return (state if result.accepted else _replace(state, status="error")), done
+
+    on_no_result = RobotMachine.on_no_result
+
+    def sticky_error(self, step, reason):
+        self.state = "error"
+        return on_no_result(self, step, reason)
+
+    def error_not_executed(self, step, reason):
+        last = self.last_tick
+        state = on_no_result(self, step, reason)
+        self.last_tick = last
+        return state
+
+    publish = RobotPool._publish
+
+    def done_first(self, k, batch_states, outcomes):
+        for _state, done in outcomes:
+            if done is not None:
+                self._put(done.robot, self.keys.done(done.robot), done)
+        publish(self, k, batch_states, [(state, None) for state, _done in outcomes])
+
+    def done_at_ack(self, rid, payload):
+        pool_on_plan(self, rid, payload)
+        m = self.machines[rid]
+        if m.plan is not None and len(m.plan.path) == 1 and m.done_sent_for != m.plan.plan_id:
+            m.done_sent_for = m.plan.plan_id
+            pool_put(self, rid, self.keys.done(rid), Done(robot=rid, tick=m.seen_tick, cell=tuple(m.plan.goal)))
+
+    def done_again_when_resent(self, plan):
+        if self.plan is not None and plan.plan_id == self.plan.plan_id:
+            self.done_sent_for = ""
+        return on_plan(self, plan)
+
+    def done_off_goal(self, result, plan_id=None):
+        before = self.state
+        state, done = on_result(self, result, plan_id)
+        if before == DONE and self.state != DONE:
+            self.state = DONE
+            state = _replace(state, status=DONE)
+        return state, done
+
+    def loose_plan_keys(self, key, payload):
+        text = key.split("/")[-2]
+        if text.isdigit() and int(text) in self.machines:
+            self._work.put(("plan", (int(text), payload)))
+
+    def no_move_when_resent(self, rid, payload):
+        m, ahead = self.machines[rid], self.ahead
+        try:
+            resent = m.plan is not None and decode(payload, Plan).plan_id == m.plan.plan_id
+        except ProtocolError:
+            resent = False
+        self.ahead = ahead and not resent
+        try:
+            pool_on_plan(self, rid, payload)
+        finally:
+            self.ahead = ahead
+
+    def judged_again(self, payload):
+        try:
+            k = decode(payload, agent.MovesJudged).tick
+        except ProtocolError:
+            k = None
+        for m in self.machines.values():
+            if k is not None and m.last_tick == k:
+                m.last_tick = k - 1
+        on_judged(self, payload)
+
+    put_ahead = RobotPool._put_ahead
+
+    def moves_for_all(self, k, robots):
+        put_ahead(self, k, robots)
+        for r, m in self.machines.items():
+            if m.plan is None:
+                self._ahead_seq += 1
+                self.transport.put(self.ahead_key, encode(MoveAhead(tick=k, plan_id="", moves=[(r, (0, 0), (0, 0))],
+                                                                    seq=self._ahead_seq)))
+
+    def ignore_sigint(self):
+        self.stop_on_signals_real()
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def exit_without_uav(self):
+        import threading
+        pool_start(self)
+        threading.Timer(0.5, lambda: None if self._uav_seen else self.finish("no UAV")).start()
+
+    open_session = agent.open_session
+
+    def no_wait(*args, **kw):
+        return open_session(*args, **{**kw, "wait_s": 0.5})
+
+    def ahead_reads_ticks(self):
+        import threading
+        from robot_agents.robot import Step
+        pool_start(self)
+
+        def late(k):
+            with self._mutex:
+                for r, m in self.machines.items():
+                    if m.plan is not None and m.last_tick < k:
+                        cell = m.cell or tuple(m.plan.path[0])
+                        state = m.on_no_result(Step(k, cell, cell), f"no MovesJudged for tick {k}")
+                        self._put(r, self.keys.state(r), state)
+
+        def on_tick(_key, payload):
+            try:
+                k = decode(payload, Tick).k
+            except ProtocolError:
+                return
+            threading.Timer(self.move_timeout_s, late, (k,)).start()
+        if self.ahead:
+            self.keep(self.transport.subscribe(self.keys.tick, on_tick))
+
+    class Loud:
+        """A warning line for every message dropped: no throttle."""
+        def __init__(self, prefix, interval_s=1.0):
+            self.prefix, self.count = prefix, 0
+
+        def __call__(self, text):
+            self.count += 1
+            print(f"warning: {self.prefix}: {text}", file=sys.stderr, flush=True)
+
+        def flush(self):
+            pass
+
+    def seq_must_grow(self, kind, data):
+        payload = data[1] if kind == "plan" else data
+        try:
+            seq = json.loads(payload).get("seq", 0)
+        except (ValueError, AttributeError, UnicodeDecodeError):
+            seq = 0
+        last = self.__dict__.setdefault("_mutant_seq", {})
+        if isinstance(seq, int) and seq <= last.get(kind, 0):
+            return
+        last[kind] = seq
+        handle(self, kind, data)
+
+    handle = RobotPool._handle
+
     return {
         "R1": setattr_(RobotPool, "start", no_token),
         "R2": setattr_(RobotPool, "start", token_first),
@@ -237,7 +500,7 @@ def _robot_patches() -> dict[str, Patch]:
         "R11": setattr_(RobotPool, "_on_plan", once_per_id),
         "R12": setattr_(RobotMachine, "on_plan", take_same_id),
         "R13": setattr_(RobotMachine, "_ack", lambda self, pid, ok, error: PlanAck(
-            robot=self.robot_id, plan_id=pid, ok=ok, error="" if not ok else error)),
+            robot=self.robot_id, plan_id=pid, ok=ok, error="" if not ok else error, protocol=PROTOCOL_VERSION)),
         "R14": setattr_(RobotPool, "_on_plan", ack_garbage),
         "R15": setattr_(RobotMachine, "on_plan", past_ok),
         "R16": setattr_(RobotMachine, "on_plan", repair_as_plain),
@@ -255,7 +518,7 @@ def _robot_patches() -> dict[str, Patch]:
         "R27": setattr_(RobotMachine, "classify", execute_all),
         "R28": setattr_(RobotMachine, "classify", drop_gaps),
         "R29": setattr_(RobotPool, "_put", seq_stays),
-        "R30": setattr_(RobotPool, "_ask_world", first_robot_only),
+        "R30": setattr_(RobotPool, "_ask_world", a_request_each),
         "R31": setattr_(RobotPool, "_on_end", lambda self, key, payload: None),
         "R32": setattr_(agent.Lifecycle, "stop_on_signals", ignore_sigterm),
         "R33": setattr_(RobotPool, "_on_uav", lambda self, key, alive: None),
@@ -263,6 +526,45 @@ def _robot_patches() -> dict[str, Patch]:
         "R35": setattr_(RobotPool, "start", plain_move_key),
         "R36": setattr_(RobotPool, "start", batch_key_of_the_first),
         "R37": setattr_(RobotPool, "_put_ahead", one_move_ahead),
+        "R38": setattr_(RobotPool, "_put", put_raw(seq_twice)),
+        "R39": setattr_(RobotPool, "_put", put_raw(put_dropping)),
+        "R40": setattr_(agent, "MOVE_TIMEOUT_S", 1.0),
+        "R41": setattr_(RobotPool, "_ask_world", ask_twice),
+        "R42": setattr_(RobotPool, "_ask_world", wait_out),
+        "R43": setattr_(RobotPool, "_result", any_tick),
+        "R44": setattr_(RobotPool, "_ask_world", missing_moved),
+        "R45": setattr_(agent, "decode", strict_decode),
+        "R46": setattr_(agent, "decode", rewritten(ints)),
+        "R47": setattr_(agent, "decode", rewritten(clipped)),
+        "R48": setattr_(RobotMachine, "on_plan", from_tick_0),
+        "R49": setattr_(RobotMachine, "target", stay_anywhere),
+        "R50": setattr_(RobotMachine, "on_plan", first_start_known),
+        "R51": setattr_(RobotMachine, "on_plan", remember_ids),
+        "R52": setattr_(RobotMachine, "target", stepping_on_other_plans),
+        "R53": setattr_(RobotMachine, "on_move_result", refused_is_error),
+        "R54": setattr_(RobotMachine, "on_no_result", sticky_error),
+        "R55": setattr_(RobotMachine, "on_no_result", error_not_executed),
+        "R56": setattr_(RobotPool, "_publish", done_first),
+        "R57": setattr_(RobotPool, "_on_plan", done_at_ack),
+        "R58": setattr_(RobotMachine, "on_move_result", lambda self, result, plan_id=None: on_result(self, result)),
+        "R59": setattr_(RobotMachine, "on_plan", done_again_when_resent),
+        "R60": setattr_(RobotMachine, "on_move_result", done_off_goal),
+        "R61": setattr_(RobotPool, "_on_any_plan", loose_plan_keys),
+        "R62": setattr_(RobotPool, "_publish", lambda self, k, batch_states, outcomes: publish(self, k, True, outcomes)),
+        "R63": setattr_(RobotPool, "_on_plan", no_move_when_resent),
+        "R64": setattr_(RobotPool, "_on_judged", judged_again),
+        "R65": setattr_(RobotPool, "_put_ahead", moves_for_all),
+        "R66": lambda: (setattr(agent.Lifecycle, "stop_on_signals_real", agent.Lifecycle.stop_on_signals),
+                        setattr(agent.Lifecycle, "stop_on_signals", ignore_sigint)) and None,
+        "R67": setattr_(RobotPool, "start", exit_without_uav),
+        "R68": setattr_(agent, "JOIN_TIMEOUT_S", 30.0),
+        "R69": setattr_(RobotPool, "_on_end", lambda self, key, payload: self.finish("anything on mission/end")),
+        "R70": setattr_(agent, "open_session", no_wait),
+        "R71": setattr_(RobotMachine, "_ack", lambda self, pid, ok, error: PlanAck(
+            robot=self.robot_id, plan_id=pid, ok=ok, error=error)),
+        "R72": setattr_(RobotPool, "start", ahead_reads_ticks),
+        "R73": setattr_(agent, "Throttled", Loud),
+        "R74": setattr_(RobotPool, "_handle", seq_must_grow),
     }
 
 
@@ -276,15 +578,22 @@ def _robot_main(argv: list[str]) -> int:
 
 # ---------------------------------------------------------------- UAVs
 def _uav_patches() -> dict[str, Patch]:
+    from protocol.errors import MissionError
+    from protocol.messages import MissionEnd, MissionStatus, StateBatch
     from protocol.transport import Handle
-    from uav_agent import mission
+    from uav_agent import mission, preview, recovery, watch
     from uav_agent.fleet import FleetLink
     from uav_agent.flight import Flight
     from uav_agent.mission import Mission
     from uav_agent.planning import interpreted, pipeline, validator
+    from uav_agent.pose_feed import PoseFeed
 
     transport_of, dispatch, end, decode_of, wait_until = (mission._transport, Mission._dispatch, Mission._end,
                                                           FleetLink._decode, FleetLink.wait_until)
+    take_state, on_robot_alive, wait_tick, recover = (FleetLink._take_state, FleetLink._on_robot_alive,
+                                                      FleetLink.wait_tick, Mission._recover)
+    verify, query, replan, pose_feed_init = Mission._verify, mission._query, recovery.replan, PoseFeed.__init__
+    flown: dict[str, Mission] = {}   # the mission being flown, for patches of the fleet's link that need its plan
 
     def no_uav_token(cfg):
         t = transport_of(cfg)
@@ -321,9 +630,11 @@ def _uav_patches() -> dict[str, Patch]:
         return plan
 
     def conflicting():
-        # Both ways the UAV plans: compiled, and interpreted while a fresh clone's kernels compile.
+        # Both ways the UAV plans: compiled, and interpreted while a fresh clone's kernels compile (in a
+        # child process, which this patch does not reach: on a fresh clone the mutant waits for the compile).
         pipeline.plan_mission = through_a_goal(pipeline.plan_mission)
         interpreted.plan_interpreted = through_a_goal(interpreted.plan_interpreted)
+        Mission._plan_while_compiling = lambda self, *args: None
         validator.check = lambda *a, **k: None
 
     def skip_ack_wait(self, ready, timeout, failure, abort=None):
@@ -357,6 +668,108 @@ def _uav_patches() -> dict[str, Patch]:
     def both(*patches: Patch) -> Patch:
         return lambda: [p() for p in patches] and None
 
+    def one_left_out(free, goals, working, blocked, **options):
+        # Every repair leaves out its highest working robot (as if it were stopped): it gets no plan.
+        if len(working) > 1:
+            out = max(working)
+            blocked = {**blocked, out: working[out]}
+            working = {r: c for r, c in working.items() if r != out}
+        return replan(free, goals, working, blocked, **options)
+
+    def keeps_the_lost(self, key, alive):
+        if alive:
+            on_robot_alive(self, key, alive)
+
+    def errors_ignored(self, robot, tick, cell, status, error):
+        take_state(self, robot, tick, cell, "stepping" if status == "error" else status, error)
+
+    def remembered(self, plan, first=False):
+        flown["mission"] = self
+        return dispatch(self, plan, first)
+
+    def plan_cells_believed(self, robot, tick, cell, status, error):
+        m = flown.get("mission")
+        if m is not None and m.plan is not None and robot in m.plan.paths:
+            cell = m.plan.cell(robot, tick)
+        take_state(self, robot, tick, cell, status, error)
+
+    def gives_up_at_the_third_repair(self, k, faults):
+        n = self.__dict__["_mutant_repairs"] = self.__dict__.get("_mutant_repairs", 0) + 1
+        if n >= 3:
+            raise MissionError(f"gave up after {n - 1} repairs")
+        return recover(self, k, faults)
+
+    def every_entry(self, key, payload):
+        try:
+            msg = decode(payload, StateBatch)
+        except ProtocolError as exc:
+            self._reject(key, str(exc))
+            return
+        if not self._from_the_future(key, msg.tick):
+            with self.cv:
+                for robot, cell, status, _plan, error in msg.states:
+                    take_state(self, robot, msg.tick, cell, status, error)
+
+    def flicker(self, plan, first=False):
+        if first:
+            self._token.close()
+            time.sleep(0.2)
+            self._token = self.transport.announce(self.keys.alive_uav)
+        return dispatch(self, plan, first)
+
+    def needs_done(self):
+        verify(self)
+        for r in self.verified:
+            self.verified[r] = self.verified[r] and r in self.fleet.done
+
+    def forever_if(words: str):
+        def wait(self, ready, timeout, failure, *args, **kw):
+            return wait_until(self, ready, 1e6 if words in failure() else timeout, failure, *args, **kw)
+        return wait
+
+    def until_it_answers(transport, key, request, reply_type, what, *args, **kw):
+        while True:
+            try:
+                return query(transport, key, request, reply_type, what, *args, **kw)
+            except MissionError:
+                if what != "info":
+                    raise
+                time.sleep(1.0)
+
+    def unacked_repair_is_fatal(self, plan, first=False):
+        failed = dispatch(self, plan, first)
+        if failed and not first:
+            raise MissionError(f"robots {failed} did not take repair {plan.plan_id}")
+        return failed
+
+    def no_executing_status(**kw):
+        return MissionStatus(**({**kw, "tick": 0} if kw.get("phase") == "executing" else kw))
+
+    def no_event(**kw):
+        raise RuntimeError("the mutant publishes no event")
+
+    def slow_poses(self, flight, publish, t0=None, period_s=0.2):
+        pose_feed_init(self, flight, publish, t0, 2.0)
+
+    def hurried(self, k, faults):
+        self.fleet.__dict__["_mutant_hurry"] = True
+        try:
+            return recover(self, k, faults)
+        finally:
+            self.fleet.__dict__["_mutant_hurry"] = False
+
+    def unsettled(self, robots, k, timeout, interrupt):
+        return {} if self.__dict__.get("_mutant_hurry") else wait_tick(self, robots, k, timeout, interrupt)
+
+    def plan_after_end(self, completed, reason):
+        end(self, completed, reason)
+        plan = self.plan
+        if plan is not None:
+            r = plan.ids[0]
+            self.transport.put(self.keys.plan(r), mission.encode(Plan(
+                robot=r, plan_id=plan.plan_id, path=plan.paths[r], goal=plan.goals[r], start_tick=plan.start_tick,
+                seq=self._next())))
+
     return {
         "U1": setattr_(mission, "_transport", no_uav_token),
         "U2": setattr_(Mission, "_dispatch", plan_to_a_stranger),
@@ -375,6 +788,28 @@ def _uav_patches() -> dict[str, Patch]:
         "U14": both(setattr_(Mission, "_verify", believe), setattr_(Mission, "_off_goal", lambda self: [])),
         "U15": setattr_(FleetLink, "_decode", any_robot),
         "U16": setattr_(mission, "PLAN_RESEND_S", 6.0),
+        "U17": setattr_(recovery, "replan", one_left_out),
+        "U18": setattr_(FleetLink, "_on_robot_alive", keeps_the_lost),
+        "U19": setattr_(FleetLink, "_take_state", errors_ignored),
+        "U20": both(setattr_(Mission, "_dispatch", remembered), setattr_(FleetLink, "_take_state", plan_cells_believed)),
+        "U21": setattr_(Mission, "_rejoining", lambda self: []),
+        "U22": setattr_(Mission, "_recover", gives_up_at_the_third_repair),
+        "U23": setattr_(FleetLink, "_from_the_future", lambda self, key, tick: False),
+        "U24": setattr_(FleetLink, "_on_state_batch", every_entry),
+        "U25": setattr_(Mission, "_dispatch", flicker),
+        "U26": setattr_(Mission, "_verify", needs_done),
+        "U27": setattr_(watch, "FOREIGN_MODES", set()),
+        "U28": setattr_(FleetLink, "wait_until", forever_if("no world")),
+        "U29": setattr_(mission, "_query", until_it_answers),
+        "U30": setattr_(FleetLink, "wait_until", forever_if("came alive")),
+        "U31": setattr_(Mission, "_dispatch", unacked_repair_is_fatal),
+        "U32": setattr_(mission, "MissionStatus", no_executing_status),
+        "U33": setattr_(mission, "MissionEvent", no_event),
+        "U34": setattr_(PoseFeed, "__init__", slow_poses),
+        "U35": setattr_(preview, "preview_frame", lambda frame, side=preview.PREVIEW_SIDE: frame),
+        "U36": both(setattr_(Mission, "_recover", hurried), setattr_(FleetLink, "wait_tick", unsettled)),
+        "U37": setattr_(Mission, "_end", plan_after_end),
+        "U38": setattr_(mission, "MissionEnd", made_with(MissionEnd, reason=lambda kw: "")),
     }
 
 

@@ -6,14 +6,16 @@ port, a fake UAV, a fake move service) and starts the robot under test from
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import signal
 import time
 
 import pytest
 
-from conformance import signal_group
-from protocol.messages import Plan, Tick, encode
+from conformance import FakeUav, Hub, Wire, free_endpoint, signal_group, start_robot, stop_process
+from protocol.keys import new_fleet_name
+from protocol.messages import (MESSAGE_TYPES, MissionEnd, MovesJudged, Plan, Tick, decode, encode)
 
 EXIT_S = 5.0
 QUIET_S = 0.5  # how long "nothing more arrives" is watched for
@@ -57,6 +59,7 @@ def test_valid_plan_is_acknowledged(robot, uav, rid, timeout):
 MALFORMED = {  # docs/protocol.md, Plans and ticks: what a robot refuses with ok: false and a one-line error
     "jump": dict(path=[(2, 2), (4, 2)]),
     "diagonal-under-4": dict(path=[(2, 2), (3, 3)], connectivity=4),
+    "diagonal-unstated": dict(path=[(2, 2), (3, 3)]),     # the robot's own connectivity: 4 unless started with 8
     "goal": dict(path=[(2, 2), (3, 2)], goal=(5, 5)),
     "empty": dict(path=[], goal=(2, 2)),
     "other-robot": dict(path=[(2, 2), (3, 2)], for_robot="next"),
@@ -143,7 +146,8 @@ def test_garbage_and_wrong_versions_do_not_crash_it(robot, uav, world, rid, time
     time.sleep(QUIET_S)
     assert robot.poll() is None, "the robot died on garbage"
     assert not world.requests, "garbage on the tick key made the robot move"
-    assert not any(a.plan_id == "p-v99" for a in uav.acks.get(rid, [])), "a wrong-version plan was acted on"
+    assert not uav.acks.get(rid), f"plans that do not decode were answered: {uav.acks.get(rid)} (no PlanAck, " \
+                                  "not even ok: false: the robot cannot trust their robot and plan_id)"
     path = [(2, 2), (2, 3)]
     _accepted(uav, rid, "p-after", path, timeout)
     (st,) = _run_ticks(uav, world, rid, "p-after", path, 1, timeout)
@@ -180,7 +184,7 @@ def test_exits_on_mission_end(robot, uav, rid, timeout):
 def test_exits_on_sigterm(robot, uav, rid, timeout):
     robot.send_signal(signal.SIGTERM)
     assert _exits(robot, EXIT_S), f"still running {EXIT_S:g} s after SIGTERM"
-    assert robot.returncode in (0, -signal.SIGTERM)
+    assert robot.returncode == 0, f"exit code {robot.returncode}: a robot exits 0 on SIGTERM, closing its session"
 
 
 def test_exits_when_the_uav_goes_away(robot, uav, rid):
@@ -327,6 +331,9 @@ def test_no_answer_from_the_world_is_an_error_state(robot, uav, world, rid, time
     assert st is not None, "no RobotState when the world did not answer the move"
     assert st.status == "error" and st.error, f"status {st.status!r} error {st.error!r}"
     assert tuple(st.cell) == (2, 2), f"an error state must name the last known cell (2, 2), not {st.cell}"
+    time.sleep(QUIET_S)
+    asked = len(world.requests_for(rid, 1))
+    assert asked == 1, f"the robot asked {asked} times for tick 1: a robot does not ask twice for a tick"
 
 
 # ---------------------------------------------------------------- ticks
@@ -396,6 +403,12 @@ def test_a_pool_keeps_each_robots_contract(spawn, pool_cmd, uav, world, rid, tim
         uav.tick(k, 2, "p-pool")
         for r in ids:
             assert uav.state_at(r, k, timeout) is not None, f"robot {r}: no RobotState for tick {k}"
+    with world.cv:
+        queries = [(k, robots) for _key, k, robots, _p in world.queries if set(robots) & set(ids)]
+    for k in (1, 2):
+        mine = [robots for kk, robots in queries if kk == k]
+        assert len(mine) == 1, f"tick {k}: the pool asked {len(mine)} queries ({mine}), expected one for all its " \
+                               "robots (docs/protocol.md, Plans and ticks)"
     for r in ids:
         for k in (1, 2):
             reqs = world.requests_for(r, k)
@@ -431,6 +444,8 @@ def test_a_pool_told_to_batch_reports_each_robots_state_of_the_tick(spawn, pool_
         counts = {(r, k): sum(s.tick == k for s in uav.states[r]) for r in ids for k in (1, 2)}
     assert all(key == hub.keys.states_as(ids) for key, _ in batches), f"StateBatch keys {batches}"
     assert all(n == 1 for n in counts.values()), f"states per robot and tick {counts}, expected one each"
+    seqs = list(uav.batch_seqs)
+    assert seqs == list(range(1, len(seqs) + 1)), f"StateBatch seq {seqs}: a pool numbers them 1, 2, 3, ..."
 
 
 # ---------------------------------------------------------------- moving ahead
@@ -494,6 +509,9 @@ def test_a_robot_moving_ahead_puts_each_move_before_what_the_uav_waits_for(spawn
         st = uav.state_at(rid, 3, timeout)
         assert st is not None and tuple(st.cell) == (2, 2) and st.plan_id == "pb", f"state of tick 3: {st}"
         assert not world.request_seqs and not world.batch_seqs, "a robot moving ahead asked the world too"
+        with world.cv:
+            seqs = [m.seq for _k, m in world.aheads]
+        assert seqs == list(range(1, len(seqs) + 1)), f"MoveAhead seq {seqs}: numbered 1, 2, 3, ... by one counter"
     finally:
         h.close()
 
@@ -524,3 +542,627 @@ def test_a_pool_moving_ahead_puts_one_move_per_plan_it_holds(spawn, pool_ahead_c
     with world.cv:
         asked = [key for key, robots in world.move_keys if set(robots) & set(ids)]
     assert not asked, f"a pool moving ahead asks no query: it asked on {asked}"
+
+
+# ---------------------------------------------------------------- what it sends, and how
+ROBOT_PUTS = {"/ack": "PlanAck", "/state": "RobotState", "/done": "Done", "/states": "StateBatch"}
+
+
+def _type_of_put(key: str) -> str:
+    if "/world/ahead/" in key:
+        return "MoveAhead"
+    return next(t for suffix, t in ROBOT_PUTS.items() if key.endswith(suffix))
+
+
+def _unique_keys(pairs):
+    keys = [k for k, _v in pairs]
+    twice = sorted({k for k in keys if keys.count(k) > 1})
+    assert not twice, f"a key written twice: {twice}"
+    return dict(pairs)
+
+
+def _check_well_formed(what: str, payload: bytes, expected: str) -> None:
+    assert not payload.startswith(b"\xef\xbb\xbf"), f"{what}: a byte-order mark"
+    try:
+        body = json.loads(payload.decode("utf-8"), object_pairs_hook=_unique_keys)
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise AssertionError(f"{what}: not one JSON object in UTF-8: {exc}") from None
+    except AssertionError as exc:
+        raise AssertionError(f"{what}: {exc}: {payload[:200]!r}") from None
+    assert isinstance(body, dict) and body.get("type") == expected, f"{what}: expected a {expected}: {payload[:200]!r}"
+    assert type(body.get("v")) is int and body["v"] == 1, f"{what}: `v` must be the integer 1: {payload[:200]!r}"
+    decode(payload, MESSAGE_TYPES[expected])   # raises naming the field
+
+
+def _a_run_to_done(uav, world, rid, timeout, plan_id="p-run") -> None:
+    """A refused plan, a plan acknowledged, two ticks, its Done: a bit of everything a robot puts."""
+    uav.plan(rid, f"{plan_id}-bad", [(2, 2), (4, 2)])
+    assert uav.ack_for(rid, f"{plan_id}-bad", timeout) is not None, "no PlanAck for a malformed plan"
+    path = [(2, 2), (3, 2)]
+    _accepted(uav, rid, plan_id, path, timeout)
+    _run_ticks(uav, world, rid, plan_id, path, 2, timeout)
+    assert uav.until(lambda: bool(uav.dones.get(rid)), timeout), "no Done at the goal"
+    time.sleep(QUIET_S)
+
+
+def test_everything_it_sends_is_one_well_formed_message(robot, hub, uav, world, rid, timeout):
+    """docs/protocol.md, Messages: one JSON object in UTF-8 without a byte-order mark, `v` the integer 1,
+    each key once (another reader may refuse a key written twice), and it decodes."""
+    wire = Wire(hub)
+    try:
+        _a_run_to_done(uav, world, rid, timeout)
+        with wire.cv:
+            puts = list(wire.puts)
+    finally:
+        wire.close()
+    assert puts, "nothing put"
+    for key, payload, _cc in puts:
+        _check_well_formed(f"put on {key}", payload, _type_of_put(key))
+    with world.cv:
+        queries = list(world.queries)
+    for key, _k, robots, payload in queries:
+        _check_well_formed(f"query on {key}", payload, "MoveBatch" if len(robots) > 1 or b'"MoveBatch"' in payload
+                           else "MoveRequest")
+
+
+def test_every_put_uses_congestion_control_block(robot, hub, uav, world, rid, timeout):
+    """docs/protocol.md, QoS: congestion control BLOCK on every put (DROP loses bursts); it travels with each put."""
+    wire = Wire(hub)
+    try:
+        _a_run_to_done(uav, world, rid, timeout)
+        with wire.cv:
+            puts = [(key, cc) for key, _p, cc in wire.puts]
+    finally:
+        wire.close()
+    assert puts, "nothing put"
+    dropped = sorted({key for key, cc in puts if cc != "BLOCK"})
+    assert not dropped, f"puts without congestion control BLOCK on {dropped}: {[cc for _k, cc in puts]}"
+
+
+def test_a_late_answer_within_the_move_timeout_is_taken(robot, uav, world, rid, timeout):
+    """docs/protocol.md, QoS: a robot waits 5 s for the world's answer to a move (the world may take its 2 s
+    batch timeout and more): an answer after 3 s is an answer, not an error."""
+    world.delay_s = 3.0
+    path = [(2, 2), (3, 2)]
+    _accepted(uav, rid, "p-late", path, timeout)
+    uav.tick(1, 1, "p-late")
+    st = uav.state_at(rid, 1, max(timeout, MOVE_TIMEOUT_S + 2.0))
+    assert st is not None, "no RobotState for tick 1"
+    assert st.status != "error" and tuple(st.cell) == (3, 2), \
+        f"the world answered after 3 s, within the 5 s move timeout, but the robot reported {st}"
+
+
+def test_a_query_that_ends_without_a_reply_is_no_answer_at_once(robot, uav, world, rid, timeout):
+    """docs/protocol.md, Plans and ticks: a query that ends without a reply (no world serves the key) is no
+    answer at once, without waiting out the move timeout."""
+    world.answer = False   # the fake world finishes the query at once, without a reply
+    _accepted(uav, rid, "p-ended", [(2, 2), (3, 2)], timeout)
+    t0 = time.monotonic()
+    uav.tick(1, 1, "p-ended")
+    st = uav.state_at(rid, 1, MOVE_TIMEOUT_S + 2.0)
+    took = time.monotonic() - t0
+    assert st is not None and st.status == "error", f"no error state for a query that ended without a reply: {st}"
+    assert took < MOVE_TIMEOUT_S - 2.0, f"the error state came {took:.1f} s after the tick: the query had " \
+                                        "ended without a reply at once, nothing was left to wait for"
+
+
+@pytest.mark.parametrize("other", ["tick", "robot"])
+def test_an_answer_for_another_tick_or_robot_is_no_answer(robot, uav, world, rid, timeout, other):
+    """docs/protocol.md, Plans and ticks: a reply for another robot or tick is no answer (dropped and counted)."""
+    world.reply_with = lambda res: dataclasses.replace(res, **{other: getattr(res, other) + 1})
+    _accepted(uav, rid, f"p-other-{other}", [(2, 2), (3, 2)], timeout)
+    uav.tick(1, 1, f"p-other-{other}")
+    st = uav.state_at(rid, 1, max(timeout, MOVE_TIMEOUT_S + 1.0))
+    assert st is not None, "no RobotState when the only reply was for another " + other
+    assert st.status == "error" and tuple(st.cell) == (2, 2), \
+        f"the only reply named another {other}: no answer, an error state at (2, 2); got {st}"
+
+
+def test_a_batch_answer_missing_or_adding_robots(spawn, pool_cmd, uav, world, rid, timeout):
+    """docs/protocol.md, Plans and ticks: for a pool's MoveBatch, a robot the reply has no entry for gets
+    no answer (an error state); the others take theirs; an entry for a robot it did not ask for is ignored."""
+    ids = [rid, rid + 1, rid + 2]       # rid + 2 holds no plan: it asks nothing
+    proc = spawn(pool_cmd, ids)
+    assert uav.until(lambda: set(ids) <= uav.alive or proc.poll() is not None, timeout), "no tokens"
+    paths = {rid: [(2, 2), (3, 2)], rid + 1: [(6, 6), (6, 5)]}
+    for r, path in paths.items():
+        _accepted(uav, r, "p-entries", path, timeout)
+    world.batch_with = lambda entries: [e for e in entries if e[0] != rid + 1] + [(rid + 2, True, (9, 9), "")]
+    uav.tick(1, 1, "p-entries")
+    first = uav.state_at(rid, 1, timeout)
+    second = uav.state_at(rid + 1, 1, max(timeout, MOVE_TIMEOUT_S + 1.0))
+    time.sleep(QUIET_S)
+    assert first is not None and first.status != "error" and tuple(first.cell) == (3, 2), \
+        f"robot {rid} had its entry: {first}"
+    assert second is not None and second.status == "error" and tuple(second.cell) == (6, 6), \
+        f"robot {rid + 1} had no entry in the answer: an error state at (6, 6), got {second}"
+    assert not uav.states.get(rid + 2), f"robot {rid + 2} asked nothing, yet reported {uav.states.get(rid + 2)}"
+
+
+# ---------------------------------------------------------------- what it takes, and what it drops
+def _raw(body: dict) -> bytes:
+    return json.dumps(body, separators=(",", ":")).encode()
+
+
+def test_unknown_fields_are_ignored_and_defaults_may_be_left_out(robot, uav, world, rid, timeout):
+    """docs/protocol.md, Messages: a receiver ignores fields it does not know, whatever their value; the
+    fields with a default (`seq`, `start_tick`, `connectivity`, `batch_states`) may be left out."""
+    k = uav.keys
+    uav.transport.put(k.plan(rid), _raw({"type": "Plan", "v": 1, "robot": rid, "plan_id": "p-future",
+                                         "path": [[2, 2], [3, 2]], "goal": [3, 2],
+                                         "priority": {"lane": [1, {"x": None}], "why": "a later version"}}))
+    ack = uav.ack_for(rid, "p-future", timeout)
+    assert ack is not None and ack.ok, f"a plan with a field the robot does not know was not taken: {ack}"
+    uav.transport.put(k.tick, _raw({"type": "Tick", "v": 1, "k": 1, "ticks": 1, "plan_id": "p-future",
+                                    "deadline_s": 2.5, "lanes": [[1, 2], [3]]}))
+    st = uav.state_at(rid, 1, timeout)
+    assert st is not None and tuple(st.cell) == (3, 2), f"a tick with a field the robot does not know: {st}"
+
+
+def _plan_body(rid: int, plan_id: str, **change) -> dict:
+    return {"type": "Plan", "v": 1, "seq": 1, "robot": rid, "plan_id": plan_id, "path": [[2, 2], [3, 2]],
+            "goal": [3, 2], **change}
+
+
+def _dropped(robot, uav, world, rid, timeout, plans: dict[str, bytes], ticks: dict[str, bytes]) -> None:
+    """Each of `plans` gets no ack, each of `ticks` no move; then the robot still takes a plan and a tick."""
+    k = uav.keys
+    for payload in plans.values():
+        uav.transport.put(k.plan(rid), payload)
+    time.sleep(QUIET_S)
+    answered = [(a.plan_id[:40], a.ok) for a in uav.acks.get(rid, [])]
+    assert not answered, f"plans that do not decode were answered: {answered} (a PlanAck only for a plan that decodes)"
+    assert robot.poll() is None, "the robot died on a payload that does not decode"
+    _accepted(uav, rid, "p-good", [(2, 2), (3, 2), (4, 2)], timeout)
+    for payload in ticks.values():
+        uav.transport.put(k.tick, payload)
+    time.sleep(QUIET_S)
+    assert not world.requests, f"a tick that does not decode made it move: {world.requests}"
+    uav.tick(1, 2, "p-good")
+    st = uav.state_at(rid, 1, timeout)
+    assert st is not None and tuple(st.cell) == (3, 2), f"tick 1 after the dropped ones: {st}"
+
+
+def test_a_message_breaking_the_types_is_dropped(robot, uav, world, rid, timeout):
+    """docs/protocol.md, Types: a bool is true/false, an int no 2.0 nor true, no NaN anywhere, no lone surrogate."""
+    plans = {"p-robot-true": _raw(_plan_body(True, "p-robot-true")),
+             "p-float-cell": _raw(_plan_body(rid, "p-float-cell", path=[[2.0, 2], [3, 2]])),
+             "p-v-float": _raw(_plan_body(rid, "p-v-float", v=1.0)),
+             "p-start-true": _raw(_plan_body(rid, "p-start-true", start_tick=True)),
+             "p-nan": _raw(_plan_body(rid, "p-nan")).replace(b'"seq":1', b'"seq":1,"x":NaN'),
+             "p-surrogate": _raw(_plan_body(rid, "p-surrogate")).replace(b'"p-surrogate"', b'"p-surrogate\\ud800"')}
+    tick = {"type": "Tick", "v": 1, "seq": 9, "k": 1, "ticks": 2, "plan_id": "p-good"}
+    ticks = {"k-float": _raw({**tick, "k": 1.0}), "flag-int": _raw({**tick, "batch_states": 1}),
+             "ticks-true": _raw({**tick, "ticks": True})}
+    _dropped(robot, uav, world, rid, timeout, plans, ticks)
+
+
+def test_a_message_breaking_a_limit_is_dropped(robot, uav, world, rid, timeout):
+    """docs/protocol.md, Limits and value ranges: decode checks them; a message beyond one is dropped whole."""
+    deep = [[]]
+    for _ in range(33):
+        deep = [deep]
+    plans = {"p-far-cell": _raw(_plan_body(rid, "p-far-cell", path=[[16383, 2], [16384, 2]], goal=[16384, 2])),
+             "p-long-path": _raw(_plan_body(rid, "p-long-path", path=[[2, 2]] * 100_002, goal=[2, 2])),
+             "p-deep": _raw(_plan_body(rid, "p-deep", extra=deep)),
+             "p-big": _raw(_plan_body(rid, "p-big", extra="x" * (8 * 2**20))),
+             "p-robot-id": _raw(_plan_body(10_000_000, "p-robot-id")),
+             "p-connectivity": _raw(_plan_body(rid, "p-connectivity", connectivity=6)),
+             "p-start-tick": _raw(_plan_body(rid, "p-start-tick", start_tick=100_001)),
+             "p-seq": _raw(_plan_body(rid, "p-seq", seq=-1))}
+    long_id = "p" * 4097
+    plans[long_id] = _raw(_plan_body(rid, long_id))
+    tick = {"type": "Tick", "v": 1, "seq": 9, "k": 1, "ticks": 2, "plan_id": "p-good"}
+    ticks = {"k-0": _raw({**tick, "k": 0}), "k-over": _raw({**tick, "k": 100_001}),
+             "ticks-over": _raw({**tick, "ticks": 100_001})}
+    _dropped(robot, uav, world, rid, timeout, plans, ticks)
+
+
+# ---------------------------------------------------------------- plans: base tick, start cell, ids
+def test_a_plan_counts_from_the_highest_tick_seen(robot, uav, world, rid, timeout):
+    """docs/protocol.md, Plans and ticks: without `start_tick`, `path[i]` is the cell at tick b + i, b the
+    highest tick the robot has seen, ticks heard while it held no plan included."""
+    for k in (1, 2, 3):
+        uav.tick(k, 3, "p-before-it")
+    time.sleep(QUIET_S)
+    path = [(2, 2), (3, 2), (4, 2)]
+    _accepted(uav, rid, "p-late-join", path, timeout)
+    uav.tick(4, 5, "p-late-join")
+    assert uav.state_at(rid, 4, timeout) is not None, "no RobotState for tick 4"
+    (req,) = world.requests_for(rid, 4)
+    assert (tuple(req.frm), tuple(req.to)) == ((2, 2), (3, 2)), \
+        f"tick 4, the first after a plan taken at tick 3: asked {req.frm} -> {req.to}, expected path[0] -> path[1]"
+
+
+def test_a_robot_without_a_plan_asks_nothing(robot, uav, world, rid, timeout):
+    """docs/protocol.md, Plans and ticks: a robot that holds no plan does not know its cell: it asks nothing and
+    publishes no state for that tick."""
+    uav.tick(1, 2, "p-not-yours")
+    uav.tick(2, 2, "p-not-yours")
+    time.sleep(QUIET_S)
+    assert not world.requests_for(rid, 1) and not world.requests_for(rid, 2), "a robot without a plan asked a move"
+    assert not uav.states.get(rid), f"a robot without a plan reported {uav.states.get(rid)}"
+    assert robot.poll() is None
+
+
+def test_a_second_plan_before_tick_1_may_start_anywhere(robot, uav, world, rid, timeout):
+    """docs/protocol.md, Plans and ticks: until the world's first answer the robot does not know where it
+    stands, so it accepts any path[0], a second plan before tick 1 included."""
+    _accepted(uav, rid, "p-one", [(2, 2), (3, 2)], timeout)
+    uav.plan(rid, "p-two", [(5, 5), (5, 6)])
+    ack = uav.ack_for(rid, "p-two", timeout)
+    assert ack is not None and ack.ok, f"a second plan before tick 1, starting elsewhere, was refused: {ack}"
+    uav.tick(1, 1, "p-two")
+    assert uav.state_at(rid, 1, timeout) is not None, "no RobotState for tick 1"
+    (req,) = world.requests_for(rid, 1)
+    assert (tuple(req.frm), tuple(req.to)) == ((5, 5), (5, 6)), f"tick 1: asked {req.frm} -> {req.to}"
+
+
+def test_a_plan_id_held_before_is_a_new_plan(robot, uav, world, rid, timeout):
+    """docs/protocol.md, Plans and ticks: an id the robot held before is not remembered."""
+    _accepted(uav, rid, "p-a", [(2, 2), (3, 2)], timeout)
+    _run_ticks(uav, world, rid, "p-a", [(2, 2), (3, 2)], 1, timeout)            # at (3, 2)
+    _accepted(uav, rid, "p-b", [(3, 2), (3, 3)], timeout)
+    uav.tick(2, 2, "p-b")
+    assert uav.state_at(rid, 2, timeout) is not None, "no RobotState for tick 2"   # at (3, 3)
+    uav.plan(rid, "p-a", [(3, 3), (4, 3)])
+    acks = uav.acks_for(rid, "p-a", 2, timeout)
+    assert len(acks) == 2 and acks[1].ok, f"p-a again, from where the robot stands, is a new plan: {acks[1:]}"
+    uav.tick(3, 3, "p-a")
+    assert uav.state_at(rid, 3, timeout) is not None, "no RobotState for tick 3"
+    (req,) = world.requests_for(rid, 3)
+    assert (tuple(req.frm), tuple(req.to)) == ((3, 3), (4, 3)), f"tick 3: asked {req.frm} -> {req.to}"
+
+
+# ---------------------------------------------------------------- statuses
+def test_a_tick_for_another_plan_keeps_the_status(robot, uav, world, rid, timeout):
+    """docs/protocol.md, Plans and ticks: a robot that stayed on a tick for another plan keeps the status it had
+    (`ready` if it has executed no tick of its plan, `done` on its goal)."""
+    _accepted(uav, rid, "p-kept", [(2, 2), (3, 2)], timeout)
+    uav.tick(1, 1, "p-elses")
+    st1 = uav.state_at(rid, 1, timeout)
+    assert st1 is not None and st1.status == "ready", f"a stay on another plan's tick before any of its own: {st1}"
+    uav.tick(2, 2, "p-kept")
+    st2 = uav.state_at(rid, 2, timeout)
+    assert st2 is not None and st2.status == "done", f"tick 2 of a two-cell plan: {st2}"
+    uav.tick(3, 3, "p-elses")
+    st3 = uav.state_at(rid, 3, timeout)
+    assert st3 is not None and st3.status == "done", f"a stay on another plan's tick, on its goal: {st3}"
+
+
+def test_a_refused_move_is_no_error_and_carries_the_worlds_reason(robot, uav, world, rid, timeout):
+    """docs/protocol.md, Robot status and Plans and ticks: `status: "error"` only when the world gave no
+    answer; a refused move's state has its status after the tick and the world's reason in `error`."""
+    path = [(2, 2), (3, 2), (4, 2)]
+    world.refuse.update({(rid, 2), (rid, 4)})
+    _accepted(uav, rid, "p-why", path, timeout)
+    states = _run_ticks(uav, world, rid, "p-why", path, 4, timeout)   # refused at 2, arrives at 3, refused at 4
+    for k in (2, 4):
+        st = states[k - 1]
+        assert st.status != "error", f"tick {k}: a refused move is no error: {st}"
+        assert "refused by the conformance world" in st.error, f"tick {k}: the world's reason belongs in `error`: {st}"
+    assert states[1].status == "stepping" and tuple(states[1].cell) == (3, 2), f"tick 2: {states[1]}"
+    assert states[3].status == "done" and tuple(states[3].cell) == (4, 2), \
+        f"tick 4, its stay on its goal refused: still done there: {states[3]}"
+
+
+def test_after_an_error_tick_the_robot_goes_on_from_its_last_known_cell(robot, uav, world, rid, timeout):
+    """docs/protocol.md, Plans and ticks: `error` is the status of that tick's state only; an error tick counts
+    as executed: Tick(k) resent is ignored, Tick(k+1) is asked from the last known cell."""
+    world.answer = False
+    path = [(2, 2), (3, 2), (4, 2), (5, 2)]
+    _accepted(uav, rid, "p-err", path, timeout)
+    uav.tick(1, 2, "p-err")
+    st1 = uav.state_at(rid, 1, max(timeout, MOVE_TIMEOUT_S + 1.0))
+    assert st1 is not None and st1.status == "error", f"no error state for tick 1: {st1}"
+    world.answer = True
+    uav.tick(1, 2, "p-err")
+    time.sleep(QUIET_S)
+    assert len(world.requests_for(rid, 1)) == 1, "an error tick counts as executed: Tick(1) resent is ignored"
+    assert [s.tick for s in uav.states[rid]] == [1], f"states {[s.tick for s in uav.states[rid]]}"
+    uav.tick(2, 2, "p-err")
+    st2 = uav.state_at(rid, 2, timeout)
+    assert st2 is not None, "no RobotState for tick 2"
+    (req,) = world.requests_for(rid, 2)
+    assert (tuple(req.frm), tuple(req.to)) == ((2, 2), (4, 2)), f"tick 2: asked {req.frm} -> {req.to}"
+    assert st2.status == "stepping", f"`error` was tick 1's status only; tick 2 carries its own again: {st2}"
+
+
+def test_pushed_off_its_goal_it_is_stepping_again(robot, uav, world, rid, timeout):
+    """docs/protocol.md, Robot status: `stepping` also after being pushed off its goal; `done` on it."""
+    path = [(2, 2), (3, 2)]
+    _accepted(uav, rid, "p-push", path, timeout)
+    _run_ticks(uav, world, rid, "p-push", path, 1, timeout)
+    assert uav.until(lambda: len(uav.dones.get(rid, [])) == 1, timeout), "no Done at the goal"
+    world.refuse.add((rid, 2))
+    with world.cv:
+        world.positions[rid] = (3, 3)    # pushed: the world answers tick 2 with the cell it stands on
+    uav.tick(2, 2, "p-push")
+    st2 = uav.state_at(rid, 2, timeout)
+    assert st2 is not None and tuple(st2.cell) == (3, 3) and st2.status == "stepping", \
+        f"pushed off its goal: stepping at (3, 3), got {st2}"
+    uav.tick(3, 3, "p-push")
+    st3 = uav.state_at(rid, 3, timeout)
+    assert st3 is not None and tuple(st3.cell) == (3, 2) and st3.status == "done", f"back on its goal: {st3}"
+    time.sleep(QUIET_S)
+    assert len(uav.dones[rid]) == 1, f"one Done per plan: {uav.dones[rid]}"
+
+
+# ---------------------------------------------------------------- Done
+def test_done_follows_the_state_of_its_tick(robot, hub, uav, world, rid, timeout):
+    """docs/protocol.md, Plans and ticks: Done once, right after the state of the first tick at which the plan
+    is over and the robot stands on its goal, naming that tick."""
+    wire = Wire(hub)
+    try:
+        path = [(2, 2), (3, 2)]
+        _accepted(uav, rid, "p-order", path, timeout)
+        _run_ticks(uav, world, rid, "p-order", path, 1, timeout)
+        assert uav.until(lambda: bool(uav.dones.get(rid)), timeout), "no Done at the goal"
+        wire.until(lambda: wire.count(uav.keys.done(rid)) >= 1, timeout)   # its own subscriber, maybe later
+        order = wire.order()
+    finally:
+        wire.close()
+    state, done = (uav.keys.state(rid), 1), (uav.keys.done(rid), 1)
+    assert done in order, f"no Done naming tick 1 among {order}"
+    assert state in order and order.index(state) < order.index(done), f"Done came before the state of tick 1: {order}"
+
+
+def test_a_one_cell_plan_is_done_at_its_first_tick(robot, uav, world, rid, timeout):
+    """docs/protocol.md, Plans and ticks: for a one-cell plan, Done at its first tick, never at the ack."""
+    _accepted(uav, rid, "p-here", [(2, 2)], timeout)
+    time.sleep(QUIET_S)
+    assert not uav.dones.get(rid), f"Done at the acknowledgement: {uav.dones.get(rid)}"
+    uav.tick(1, 0, "p-here")
+    st = uav.state_at(rid, 1, timeout)
+    assert st is not None and st.status == "done", f"tick 1 of a one-cell plan: {st}"
+    assert uav.until(lambda: bool(uav.dones.get(rid)), timeout), "no Done at tick 1"
+    assert uav.dones[rid][0].tick == 1, f"Done names tick {uav.dones[rid][0].tick}, expected 1"
+
+
+def test_no_done_on_a_tick_naming_another_plan(robot, uav, world, rid, timeout):
+    """docs/protocol.md, Plans and ticks: never a Done on a tick that names another plan."""
+    _accepted(uav, rid, "p-mine", [(2, 2)], timeout)
+    uav.tick(1, 1, "p-elses")
+    assert uav.state_at(rid, 1, timeout) is not None, "no RobotState for a tick naming another plan"
+    time.sleep(QUIET_S)
+    assert not uav.dones.get(rid), f"Done on a tick naming another plan: {uav.dones.get(rid)}"
+    uav.tick(2, 2, "p-mine")
+    assert uav.until(lambda: bool(uav.dones.get(rid)), timeout), "no Done on its own plan's tick"
+    assert uav.dones[rid][0].tick == 2
+
+
+def test_done_once_per_plan_and_again_for_a_new_one(robot, uav, world, rid, timeout):
+    """docs/protocol.md, Plans and ticks: a plan resent under the id the robot holds raises no second Done;
+    a plan with a new id does."""
+    path = [(2, 2), (3, 2)]
+    _accepted(uav, rid, "p-once", path, timeout)
+    _run_ticks(uav, world, rid, "p-once", path, 1, timeout)
+    assert uav.until(lambda: len(uav.dones.get(rid, [])) == 1, timeout), "no Done at the goal"
+    uav.plan(rid, "p-once", path)
+    assert len(uav.acks_for(rid, "p-once", 2, timeout)) == 2, "the resent plan was not acknowledged again"
+    uav.tick(2, 2, "p-once")
+    assert uav.state_at(rid, 2, timeout) is not None
+    time.sleep(QUIET_S)
+    assert len(uav.dones[rid]) == 1, f"a resent plan raised another Done: {uav.dones[rid]}"
+    _accepted(uav, rid, "p-again", [(3, 2)], timeout)
+    uav.tick(3, 3, "p-again")
+    assert uav.until(lambda: len(uav.dones.get(rid, [])) == 2, timeout), "no Done for a plan with a new id"
+    assert uav.dones[rid][1].tick == 3
+
+
+# ---------------------------------------------------------------- keys
+def _noncanonical_plan_is_dropped(uav, rid, timeout) -> None:
+    k = uav.keys
+    uav.transport.put(f"{k.prefix}/robot/00{rid}/plan", encode(Plan(robot=rid, plan_id="p-zeros", path=[(2, 2)],
+                                                                     goal=(2, 2))))
+    time.sleep(QUIET_S)
+    assert not any(a.plan_id == "p-zeros" for a in uav.acks.get(rid, [])), \
+        f"a plan on robot/00{rid}/plan was taken: that key names no robot"
+    _accepted(uav, rid, "p-canonical", [(2, 2)], timeout)
+
+
+def test_a_plan_on_a_non_canonical_id_key_is_dropped(robot, uav, rid, timeout):
+    """docs/protocol.md, Keys: a single id is decimal without leading zeros; another spelling names no robot."""
+    _noncanonical_plan_is_dropped(uav, rid, timeout)
+
+
+def test_a_pool_drops_a_plan_on_a_non_canonical_id_key(spawn, pool_cmd, uav, rid, timeout):
+    proc = spawn(pool_cmd, [rid, rid + 1])
+    assert uav.until(lambda: {rid, rid + 1} <= uav.alive or proc.poll() is not None, timeout), "no tokens"
+    _noncanonical_plan_is_dropped(uav, rid, timeout)
+
+
+def test_a_pool_asks_on_the_key_naming_its_robots(spawn, pool_cmd, hub, uav, world, rid, timeout):
+    """docs/protocol.md, Keys: `<ids>` in keys in canonical form (`7-8`), however `--ids` spelled them (`7,8`)."""
+    paths = {rid + i: p for i, p in POOL_PATHS.items()}
+    ids = _pool_with_plans(spawn, pool_cmd, uav, timeout, dict.fromkeys(paths, "p-pool-key"), paths)
+    uav.tick(1, 2, "p-pool-key")
+    for r in ids:
+        assert uav.state_at(r, 1, timeout) is not None, f"robot {r}: no RobotState for tick 1"
+    with world.cv:
+        keys = sorted({key for key, robots in world.move_keys if set(robots) & set(ids)})
+    assert keys == [hub.keys.move_as(ids)], f"the pool asked on {keys}, expected {hub.keys.move_as(ids)}"
+
+
+def test_a_pool_not_told_to_batch_puts_each_robots_state(spawn, pool_cmd, uav, world, rid, timeout):
+    """docs/protocol.md, State batches: without `batch_states` (an older UAV) a pool puts one RobotState per robot."""
+    paths = {rid + i: p for i, p in POOL_PATHS.items()}
+    ids = _pool_with_plans(spawn, pool_cmd, uav, timeout, dict.fromkeys(paths, "p-unbatched"), paths)
+    uav.tick(1, 2, "p-unbatched")
+    for r in ids:
+        assert uav.state_at(r, 1, timeout) is not None, f"robot {r}: no state of tick 1"
+    time.sleep(QUIET_S)
+    assert not uav.batches, f"StateBatches to a UAV that did not ask for them: {uav.batches}"
+
+
+# ---------------------------------------------------------------- moving ahead
+def _ahead_robot(spawn, ahead_cmd, uav, rid, timeout, plan_id, path):
+    proc = spawn(ahead_cmd)
+    assert uav.until(lambda: rid in uav.alive or proc.poll() is not None, timeout), "no liveliness token"
+    _accepted(uav, rid, plan_id, path, timeout)
+    return proc
+
+
+def test_a_robot_moving_ahead_puts_its_move_again_for_a_resent_plan(spawn, ahead_cmd, hub, uav, world, rid, timeout):
+    """docs/protocol.md, Moving ahead, 1: a plan resent under the id it holds: the MoveAhead again, then the ack."""
+    wire = Wire(hub)
+    try:
+        _ahead_robot(spawn, ahead_cmd, uav, rid, timeout, "pr", [(2, 2), (3, 2)])
+        assert world.ahead_for(rid, 1, timeout), "no MoveAhead for tick 1"
+        uav.plan(rid, "pr", [(2, 2), (3, 2)])
+        assert len(uav.acks_for(rid, "pr", 2, timeout)) == 2, "the resent plan was not acknowledged again"
+        wire.until(lambda: wire.count(hub.keys.ack(rid)) >= 2, timeout)
+        order = wire.order()
+    finally:
+        wire.close()
+    move, ack = (hub.keys.ahead_as([rid]), 1), (hub.keys.ack(rid), -1)
+    moves = [i for i, item in enumerate(order) if item == move]
+    acks = [i for i, item in enumerate(order) if item == ack]
+    assert len(moves) == 2 and moves[1] < acks[1], f"the resent plan's MoveAhead must come again before its ack: {order}"
+
+
+def test_a_robot_moving_ahead_ignores_a_judgement_it_took(spawn, ahead_cmd, hub, uav, world, rid, timeout):
+    """docs/protocol.md, Moving ahead, 2: entries for a tick it already took are ignored."""
+    _ahead_robot(spawn, ahead_cmd, uav, rid, timeout, "pj", [(2, 2), (3, 2), (4, 2)])
+    uav.tick(1, 2, "pj")
+    assert uav.state_at(rid, 1, timeout) is not None, "no state of tick 1"
+    assert world.ahead_for(rid, 2, timeout), "no MoveAhead for tick 2"
+    hub.transport.put(hub.keys.judged_as([rid]), encode(MovesJudged(tick=1, plan_id="pj",
+                                                                    results=[(rid, True, (3, 2), "")])))
+    time.sleep(QUIET_S)
+    assert [s.tick for s in uav.states[rid]] == [1], f"states {[s.tick for s in uav.states[rid]]}: tick 1 was taken"
+    assert len(world.ahead_for(rid, 2, 0)) == 1, "a judgement taken again put another MoveAhead for tick 2"
+
+
+def test_a_pool_moving_ahead_puts_no_move_for_a_robot_without_a_plan(spawn, pool_ahead_cmd, uav, world, rid, timeout):
+    """docs/protocol.md, Messages (MoveAhead): a robot without a plan knows no cell and puts no move."""
+    proc = spawn(pool_ahead_cmd, [rid, rid + 1])
+    assert uav.until(lambda: {rid, rid + 1} <= uav.alive or proc.poll() is not None, timeout), "no tokens"
+    _accepted(uav, rid, "pn", [(2, 2), (3, 2), (4, 2)], timeout)
+    assert world.ahead_for(rid, 1, timeout), "no MoveAhead for tick 1"
+    uav.tick(1, 2, "pn")
+    assert uav.state_at(rid, 1, timeout) is not None, "no state of tick 1"
+    assert world.ahead_for(rid, 2, timeout), "no MoveAhead for tick 2"
+    time.sleep(QUIET_S)
+    with world.cv:
+        named = [m for _k, m in world.aheads if any(x[0] == rid + 1 for x in m.moves)]
+    assert not named, f"robot {rid + 1} holds no plan, yet moves were put for it: {named}"
+
+
+# ---------------------------------------------------------------- life and death
+def test_exits_on_sigint(robot, uav, rid, timeout):
+    robot.send_signal(signal.SIGINT)
+    assert _exits(robot, EXIT_S), f"still running {EXIT_S:g} s after SIGINT"
+    assert robot.returncode == 0, f"exit code {robot.returncode}: a robot exits 0 on SIGINT, closing its session"
+
+
+def test_serves_before_it_has_seen_the_uav(spawn, hub, world, rid, timeout):
+    """docs/protocol.md, End of mission: a robot exits when `alive/uav` disappears *after having been seen*;
+    started before any UAV, it waits and serves."""
+    quiet = FakeUav(hub.transport, hub.keys, announce=False)
+    try:
+        proc = spawn()
+        assert quiet.until(lambda: rid in quiet.alive or proc.poll() is not None, timeout), "no liveliness token"
+        time.sleep(1.0)
+        assert proc.poll() is None, f"the robot exited ({proc.returncode}) though no UAV had come and gone"
+        _accepted(quiet, rid, "p-early", [(2, 2), (3, 2)], timeout)
+    finally:
+        quiet.close()
+
+
+def test_exits_with_a_move_query_pending(robot, uav, world, rid, timeout):
+    """docs/protocol.md, End of mission: within 5 s, a move query still waiting for its answer abandoned."""
+    world.hold = True
+    _accepted(uav, rid, "p-pending", [(2, 2), (3, 2)], timeout)
+    uav.tick(1, 1, "p-pending")
+    assert world.until(lambda: bool(world.requests_for(rid, 1)), timeout), "no move asked for tick 1"
+    uav.end(True, "conformance")
+    assert _exits(robot, EXIT_S), f"still running {EXIT_S:g} s after MissionEnd, its move query pending"
+    assert not uav.states.get(rid), f"a state for the abandoned tick: {uav.states.get(rid)}"
+
+
+def test_an_undecodable_mission_end_is_dropped(robot, uav, world, rid, timeout):
+    """docs/protocol.md, End of mission: a MissionEnd that does not decode is dropped like any other message."""
+    k = uav.keys
+    for payload in (b"", b"{}", b"end", _wrong_version(MissionEnd(completed=True)),
+                    b'{"type":"MissionEnd","v":1,"completed":"yes"}', encode(Tick(k=1, ticks=1, plan_id="x"))):
+        uav.transport.put(k.mission_end, payload)
+    time.sleep(1.0)
+    assert robot.poll() is None, f"the robot exited ({robot.returncode}) on a mission end that does not decode"
+    _accepted(uav, rid, "p-still-here", [(2, 2)], timeout)
+
+
+def test_waits_for_a_router_at_start(robot_cmd, rid, timeout, tmp_path):
+    """docs/protocol.md, Timeouts and waits: a robot waits up to 20 s for a router at start."""
+    endpoint, fleet = free_endpoint(), new_fleet_name()
+    proc = start_robot(robot_cmd, rid, fleet, endpoint, tmp_path / "robot-early.log")
+    try:
+        time.sleep(2.0)
+        assert proc.poll() is None, f"the robot exited ({proc.returncode}) 2 s after it started without a router"
+        with Hub(fleet, endpoint=endpoint) as hub:
+            uav = FakeUav(hub.transport, hub.keys)
+            try:
+                assert uav.until(lambda: rid in uav.alive or proc.poll() is not None, timeout + 5.0), \
+                    "no liveliness token after the router came up"
+                assert proc.poll() is None, f"the robot exited ({proc.returncode})"
+            finally:
+                uav.close()
+    finally:
+        stop_process(proc)
+
+
+def test_every_plan_ack_states_the_protocol_it_keeps(robot, uav, robot_protocol, rid, timeout):
+    """docs/protocol.md, Versioning: every PlanAck states `protocol`, the version of this document's rules the
+    robot keeps (2; none stated means 1)."""
+    uav.plan(rid, "p-version-bad", [(2, 2), (4, 2)])
+    assert uav.ack_for(rid, "p-version-bad", timeout) is not None, "no PlanAck for a malformed plan"
+    _accepted(uav, rid, "p-version", [(2, 2), (3, 2)], timeout)
+    stated = sorted({a.protocol for a in uav.acks[rid]})
+    assert stated == [robot_protocol], f"its PlanAcks state protocol {stated}, expected {robot_protocol} in every one"
+
+
+def test_a_mission_end_put_as_the_token_appears_is_received(robot, uav, rid):
+    """docs/protocol.md, Startup order: `mission/end` is subscribed before the token is declared."""
+    uav.end(True, "conformance")
+    assert _exits(robot, EXIT_S), f"still running {EXIT_S:g} s after a MissionEnd put as its token appeared"
+
+
+def test_a_robot_moving_ahead_reports_nothing_without_a_judgement(spawn, ahead_cmd, uav, world, rid, timeout):
+    """docs/protocol.md, Moving ahead: a robot moving ahead that gets no MovesJudged reports nothing for that tick."""
+    _ahead_robot(spawn, ahead_cmd, uav, rid, timeout, "pq", [(2, 2), (3, 2)])
+    world.judge_ahead = False
+    uav.tick(1, 1, "pq")
+    time.sleep(MOVE_TIMEOUT_S + 1.0)
+    assert not uav.states.get(rid), f"states without a MovesJudged: {uav.states.get(rid)}"
+
+
+def test_dropped_messages_cost_one_warning_line_a_second(robot, uav, rid, timeout, tmp_path):
+    """docs/protocol.md, Refused messages: at most one warning line a second, what the sender chose escaped."""
+    log = tmp_path / "robot-0.log"
+    time.sleep(QUIET_S)
+    before = log.read_bytes().count(b"\n")
+    k = uav.keys
+    for i in range(100):
+        uav.transport.put(k.plan(rid), b'{"type":"Plan","v":1,"robot":"line\\nbreak %d"}' % i)
+        uav.transport.put(k.tick, b"\x1b[2J garbage\n\n%d" % i)
+    time.sleep(1.5)
+    _accepted(uav, rid, "p-after-flood", [(2, 2)], timeout)   # it got through the flood
+    lines = log.read_bytes().count(b"\n") - before
+    assert lines <= 4, f"{lines} lines for 200 dropped messages in about a second:\n" + \
+        log.read_text(errors="replace")[-1500:]
+
+
+def test_seq_is_not_acted_on(robot, uav, world, rid, timeout):
+    """docs/protocol.md, Sequence numbers: no receiver acts on `seq` (a UAV restarted counts from 1 again)."""
+    k = uav.keys
+    path = [(2, 2), (3, 2), (4, 2)]
+    uav.transport.put(k.plan(rid), encode(Plan(robot=rid, plan_id="p-seq-1", path=path, goal=path[-1], seq=50)))
+    assert uav.ack_for(rid, "p-seq-1", timeout) is not None, "no PlanAck"
+    uav.transport.put(k.tick, encode(Tick(k=1, ticks=2, plan_id="p-seq-1", seq=7)))
+    assert uav.state_at(rid, 1, timeout) is not None, "a tick with a lower seq than the plan's was not executed"
+    uav.transport.put(k.tick, encode(Tick(k=2, ticks=2, plan_id="p-seq-1", seq=7)))
+    assert uav.state_at(rid, 2, timeout) is not None, "a tick repeating the last tick's seq was not executed"
+    uav.transport.put(k.plan(rid), encode(Plan(robot=rid, plan_id="p-seq-2", path=[(4, 2), (4, 3)], goal=(4, 3),
+                                               seq=1)))
+    ack = uav.ack_for(rid, "p-seq-2", timeout)
+    assert ack is not None and ack.ok, f"a plan with seq 1 after one with seq 50: {ack}"

@@ -6,13 +6,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+from suites import run_suite
+
 REPO = Path(__file__).resolve().parents[1]
 SUITE = "conformance/test_uav_conformance.py"
 
 
 def _suite(*args: str, timeout: float = 280) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "pytest", SUITE, "-q", "-p", "no:cacheprovider", *args],
-                          cwd=REPO, capture_output=True, text=True, timeout=timeout)
+    return run_suite(SUITE, *args, timeout=timeout)
 
 
 def test_our_uav_conforms():

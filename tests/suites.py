@@ -1,0 +1,23 @@
+"""The conformance suites run as a user runs them: a pytest of their own, in its own temporary directory.
+
+pytest keeps only its three newest numbered temporary directories (`/tmp/pytest-of-<user>/pytest-N`) and
+deletes older ones as it starts, whoever still uses them: a suite started beside this test run (the
+mutation test starts five at a time) deleted the directories of the suites and tests still running, and
+their missions failed writing there ("never-up is not a normalized and relative path"). A `--basetemp`
+of its own is cleared only for itself.
+"""
+from __future__ import annotations
+
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def run_suite(suite: str, *args: str, timeout: float) -> subprocess.CompletedProcess:
+    with tempfile.TemporaryDirectory(prefix="suite-") as base:
+        return subprocess.run([sys.executable, "-m", "pytest", suite, "-q", "-p", "no:cacheprovider",
+                               f"--basetemp={base}", *args], cwd=REPO, capture_output=True, text=True,
+                              timeout=timeout)
