@@ -306,8 +306,8 @@ RULES: tuple[Rule, ...] = (
               "came back) rejoins: a repair gives it a plan, and the mission completes with it (exit 0)",
        ("test_a_stalled_robot_that_comes_back_rejoins",),
        "never takes a robot back", since=2),
-    _u(22, F, "a robot that keeps failing (a fault named by each repair, no image of it on its planned cell "
-              "between: 3 strikes) is quarantined, out of the plan for good: a bounded number of plans names it, the "
+    _u(22, F, "a robot that keeps failing (a fault named by each repair, never shown on its planned cell "
+              "between, by an image or two moves kept in a row: 3 strikes) is quarantined, out of the plan for good: a bounded number of plans names it, the "
               "others finish, their repairs not counted against the mission; `MissionEnd(completed=true)` and exit 3 "
               "(degraded)",
        ("test_a_robot_that_keeps_failing_is_quarantined_and_the_rest_finish",),

@@ -196,7 +196,8 @@ class Mission:
         self.blocked_at: dict[int, float] = {}  # when each was taken out (a later sign of life brings it back)
         self.out_reason: dict[int, str] = {}    # why each robot out of the plan is out
         self.quarantined: dict[int, str] = {}   # robots out for good (they kept failing, or had no goal left)
-        self.strikes: dict[int, list[str]] = {}  # robot -> its faults since its last planned move ("deviation@9")
+        self.strikes: dict[int, list[str]] = {}  # robot -> its faults since it was last shown on its plan ("deviation@9")
+        self._clean_moves: dict[int, int] = {}    # robot with strikes -> planned moves kept in a row since
         self._fruitless = 0                     # repairs in a row that brought the fleet no nearer its goals
         self._best_lb: tuple[frozenset[int], float] | None = None   # (working robots, best lower bound)
         self._fruitless_culprits: set[int] = set()
@@ -871,6 +872,8 @@ class Mission:
                 self._recover(k, faults)
                 next_at = time.monotonic()
                 hold_until = None
+            elif self.strikes:
+                self._moved_cleanly(plan, k)
             done = sum(1 for r in plan.ids if self._done_for(r, plan))
             self.progress.ticks(k, self.plan.end_tick, done, len(plan.ids))
             if k % 10 == 0 or k == self.plan.end_tick:
@@ -906,10 +909,20 @@ class Mission:
         return until
 
     def _forgive(self, robots) -> None:
-        """Robots an image shows on their planned cell start afresh: a robot's own states cannot clear
-        it (a skidding drive tells its robot it arrived)."""
+        """Robots shown on their plan start afresh (an image, or two clean moves in a row)."""
         for r in robots:
             self.strikes.pop(r, None)
+            self._clean_moves.pop(r, None)
+
+    def _moved_cleanly(self, plan: PlanState, k: int) -> None:
+        """A tick kept by every robot: those with strikes that made a planned move in it count it. A
+        state alone proves nothing (a skidding drive tells its robot it arrived), but the world accepting
+        the next move from the cell the robot believed proves the move before it: two in a row clear."""
+        for r in [r for r in self.strikes if r in plan.paths and k > plan.start_tick
+                  and plan.cell(r, k) != plan.cell(r, k - 1)]:
+            self._clean_moves[r] = self._clean_moves.get(r, 0) + 1
+            if self._clean_moves[r] >= 2:
+                self._forgive([r])
 
     def _plan_stops(self, plan: PlanState) -> None:
         """Where to confirm the arrivals of `plan` while it runs. A confirmation under an earlier
@@ -1192,11 +1205,12 @@ class Mission:
         planned move between, or named by MAX_FRUITLESS repairs in a row that got the fleet no nearer."""
         out = []
         for r, kind in culprits.items():
+            self._clean_moves.pop(r, None)
             self.strikes.setdefault(r, []).append(f"{kind}@{k}")
             if len(self.strikes[r]) >= MAX_STRIKES and r not in self.quarantined:
                 out.append(r)
-                self._quarantine(r, f"{len(self.strikes[r])} faults in a row, no image showing it on its plan "
-                                    "between: " + ", ".join(self.strikes[r]))
+                self._quarantine(r, f"{len(self.strikes[r])} faults in a row, never shown on its plan between "
+                                    "(an image, or two moves kept in a row): " + ", ".join(self.strikes[r]))
         if self._fruitless >= MAX_FRUITLESS:
             named = sorted((self._fruitless_culprits | set(culprits)) - set(self.quarantined))
             for r in named:
