@@ -16,6 +16,12 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 
 
+def outcome(stdout: str) -> str:
+    """pytest's last line ("38 passed in 69.24s"): the counts, not test names that hold "error"."""
+    lines = stdout.strip().splitlines()
+    return lines[-1] if lines else ""
+
+
 def run_suite(suite: str, *args: str, timeout: float) -> subprocess.CompletedProcess:
     with tempfile.TemporaryDirectory(prefix="suite-") as base:
         return subprocess.run([sys.executable, "-m", "pytest", suite, "-q", "-p", "no:cacheprovider",

@@ -6,7 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from suites import run_suite
+from suites import outcome, run_suite
 
 REPO = Path(__file__).resolve().parents[1]
 SUITE = "conformance/test_uav_conformance.py"
@@ -19,7 +19,8 @@ def _suite(*args: str, timeout: float = 280) -> subprocess.CompletedProcess:
 def test_our_uav_conforms():
     run = _suite()
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
-    assert " passed" in run.stdout and "failed" not in run.stdout and "error" not in run.stdout
+    last = outcome(run.stdout)
+    assert " passed" in last and "failed" not in last and "error" not in last, last
 
 
 def test_a_uav_that_never_comes_up_fails_the_suite():

@@ -292,6 +292,10 @@ def add_bench_parser(subparsers) -> argparse.ArgumentParser:
     from .bench_mission import add_parser as add_mission
     add_mission(sub)
     sub.choices["mission"].set_defaults(func=cmd_bench)
+
+    from .bench_faults import add_parser as add_faults
+    add_faults(sub)
+    sub.choices["faults"].set_defaults(func=cmd_bench)
     return p
 
 
@@ -310,6 +314,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
         if args.bench == "mission":
             from . import bench_mission
             return bench_mission.run(args)
+        if args.bench == "faults":
+            from . import bench_faults
+            return bench_faults.run(args)
         return bench.run_paper(args) if args.bench == "paper" else bench.run_movingai(args)
     except UavRobotsError as exc:
         return _fail(exc)
