@@ -430,14 +430,12 @@ def test_a_robot_process_drops_and_reports_an_oversize_plan_and_serves_the_next(
     """A real robot over a real Zenoh router: a plan with a 2 MB unknown field (under the old 8 MiB
     limit, so it was acknowledged) is dropped, said once on stderr, and the next plan is served."""
     from conformance import FakeUav, Hub, stop_process
+    from scenes import robot_process
 
     with Hub() as hub:
         uav = FakeUav(hub.transport, hub.keys)
-        proc = subprocess.Popen([sys.executable, "-m", "robot_agents", "--ids", "0", "--fleet", hub.fleet,
-                                 "--connect", hub.endpoint], cwd=REPO, stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True, start_new_session=True)
+        proc = robot_process(hub, "0")
         try:
-            assert proc.stdout.readline().strip() == f"robot 0 ready (fleet {hub.fleet})"
             assert uav.until(lambda: 0 in uav.alive, 10)
             plan = encode(Plan(robot=0, plan_id="big", path=[(1, 1), (1, 2)], goal=(1, 2)))
             hub.transport.put(hub.keys.plan(0), plan[:-1] + b',"x":"' + b"y" * 2_000_000 + b'"}')

@@ -16,7 +16,7 @@ from protocol.transport import MemoryBus, MemoryTransport
 from robot_agents.agent import format_ids, parse_ids, run_robots
 from robot_agents.robot import RobotMachine
 from sim_world.world import World, WorldConfig
-from scenes import open_map
+from scenes import open_map, robot_process
 
 REPO = Path(__file__).resolve().parents[1]
 T = 5.0
@@ -190,11 +190,8 @@ def test_pool_process_over_zenoh_with_a_conflict(tmp_path):
         world = World(WorldConfig(fleet=hub.fleet, map=m, scen=s, robots=4, mavlink=None, connect=[hub.endpoint]))
         world.start()
         uav = FakeUav(hub.transport, hub.keys)
-        proc = subprocess.Popen([sys.executable, "-m", "robot_agents", "--ids", "0-3", "--fleet", hub.fleet,
-                                 "--connect", hub.endpoint], cwd=REPO, stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True, start_new_session=True)
+        proc = robot_process(hub, "0-3")
         try:
-            assert proc.stdout.readline().strip() == f"robots 0-3 ready (fleet {hub.fleet})"
             ticks = mission(uav, paths)
             rec = world.record()
             assert rec.collisions >= 2 and rec.ticks == ticks
