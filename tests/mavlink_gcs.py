@@ -3,6 +3,7 @@ optionally signing what it sends and sending heartbeats like a real ground stati
 from __future__ import annotations
 
 import socket
+import struct
 import threading
 import time
 
@@ -95,12 +96,29 @@ class Client:
         """The first STATUSTEXT received (now or within `timeout`) that contains `words`."""
         deadline = time.monotonic() + timeout
         while True:
-            found = next((msg for msg in self.statustexts if words in msg.text), None)
+            texts = self.texts()
+            found = next((msg for msg, text in texts if words in text), None)
             if found is not None:
                 return found
             if time.monotonic() > deadline:
-                pytest.fail(f"no STATUSTEXT with {words!r} within {timeout} s: {[t.text for t in self.statustexts]}")
+                pytest.fail(f"no STATUSTEXT with {words!r} within {timeout} s: {[t for _, t in texts]}")
             self.poll("STATUSTEXT", 0.05)
+
+    def texts(self) -> list:
+        """(first chunk, whole text) of every STATUSTEXT received: a long text's 50-character chunks share
+        a nonzero `id` (MAVLink 2), and are joined here as a ground station joins them."""
+        whole: list = []
+        open_ids: dict[int, int] = {}
+        for msg in self.statustexts:
+            ident = getattr(msg, "id", 0)
+            if ident and ident in open_ids:
+                i = open_ids[ident]
+                whole[i] = (whole[i][0], whole[i][1] + msg.text)
+                continue
+            if ident:
+                open_ids[ident] = len(whole)
+            whole.append((msg, msg.text))
+        return whole
 
     def command(self, command: int, *params: float, target_component: int = 1, timeout: float = 3.0) -> int:
         p = list(params) + [0.0] * (7 - len(params))
@@ -113,9 +131,17 @@ class Client:
 
 
 def set_param(client: Client, name: str, value: float) -> float:
-    """PARAM_SET and the vehicle's echo: the value it stored."""
+    """PARAM_SET (as a REAL32, a script's habit) and the vehicle's echo: the value it stored, read by
+    the echo's own type (an INT32 travels bytewise, as PX4 sends it)."""
     client.send(client.mav.param_set_encode(1, 1, name.encode(), value, mavlink.MAV_PARAM_TYPE_REAL32))
-    return client.recv("PARAM_VALUE", cond=lambda m: m.param_id == name).param_value
+    return param_value(client.recv("PARAM_VALUE", cond=lambda m: m.param_id == name))
+
+
+def param_value(msg) -> float:
+    """A PARAM_VALUE's value by its type: an INT32's four bytes are in the float field (PX4's bytewise encoding)."""
+    if msg.param_type == mavlink.MAV_PARAM_TYPE_INT32:
+        return float(struct.unpack("<i", struct.pack("<f", msg.param_value))[0])
+    return msg.param_value
 
 
 def set_mode(client: Client, main: int, sub: int = 0) -> int:

@@ -4,7 +4,17 @@ airframe (it is the dynamics' `Pilot`) and decides what a touchdown means.
 Every mode change and every refusal is said as STATUSTEXT (severities as PX4's
 mavlink_log_info / _critical use them). Failsafes, as PX4's commander: a critical battery
 (COM_LOW_BAT_ACT), a geofence breach (GF_ACTION) and a datalink loss (NAV_DLL_ACT after
-COM_DL_LOSS_T, holding COM_FAIL_ACT_T first so that an operator can take over).
+COM_DL_LOSS_T, holding COM_FAIL_ACT_T first so that an operator can take over). A battery
+failsafe's return or landing (and the landing of a depleted battery, whatever COM_LOW_BAT_ACT
+says) is kept: until the vehicle is down and disarmed, a takeoff, goto, mode change, mission or
+offboard start is denied; only a LAND, and a forced disarm, are taken.
+
+Preflight, as PX4's arming checks: no arming at or below BAT_LOW_THR (or below COM_ARM_BAT_MIN),
+no takeoff at a critical battery; armed on the ground without taking off, it disarms after
+COM_DISARM_PRFLT seconds, and after a touchdown after COM_DISARM_LAND.
+
+The autopilot lives in its estimate's frame (`Estimator.believed`): it holds where it believes
+it is; the airframe flies the true point that is (`Estimator.truth_of`).
 """
 from __future__ import annotations
 
@@ -18,12 +28,14 @@ from pymavlink.dialects.v20 import common as mavlink
 from .battery import Battery, Charge
 from .datalink import Datalink
 from .dynamics import Contact, Dynamics, Setpoint, Vec3
+from .estimator import Estimator
 from .geofence import Geofence
-from .journal import CRITICAL, INFO, WARNING, Journal
-from .mission import Leg, Mission
+from .journal import CRITICAL, EMERGENCY, INFO, WARNING, Journal
+from .mission import Item, Leg, Mission
 from .modes import LandedState, Mode
 from .offboard import Offboard
 from .params import Params
+from .payload import Payload
 
 TAKEOFF_DONE_M = 0.1  # takeoff ends within this distance of the takeoff altitude
 LAND_SLOW_ALT_M = 2.0  # below this altitude a landing descends at the land speed
@@ -38,8 +50,12 @@ class Autopilot:
     a MAV_RESULT; all of them hold the lock so that each is one decision."""
 
     def __init__(self, lock: threading.RLock, journal: Journal, dynamics: Dynamics, params: Params,
-                 offboard: Offboard, battery: Battery, datalink: Datalink, mission: Mission, cruise_speed_m_s: float):
+                 offboard: Offboard, battery: Battery, datalink: Datalink, mission: Mission, cruise_speed_m_s: float,
+                 estimator: Estimator | None = None, payload: Payload | None = None, gps: bool = True):
         self._lock = lock
+        self._estimator = estimator
+        self._payload = payload
+        self._gps = gps
         self._journal = journal
         self._dynamics = dynamics
         self._params = params
@@ -51,6 +67,7 @@ class Autopilot:
         self._armed = False
         self._mode = Mode.HOLD
         self._target: Vec3 = dynamics.position
+        self._velocity: tuple | None = None  # an offboard velocity (per axis, None: fly to the target)
         self._target_yaw = 0.0
         self._speed_xy = cruise_speed_m_s  # DO_CHANGE_SPEED and DO_REPOSITION set it
         self._touchdown_at: float | None = None  # simulated time the vehicle last touched down
@@ -61,6 +78,9 @@ class Autopilot:
         self._link_lost = False
         self._clamping = False
         self._pending: tuple[Mode, float, str] | None = None  # a failsafe action due at a wall time
+        self._kept: tuple[Mode, str] | None = None  # a battery failsafe's RTL or LAND, kept until disarmed
+        self._armed_wall = 0.0  # wall time of arming (COM_DISARM_PRFLT runs on the operator's clock)
+        self._flew = False  # took off since arming
         # The modes this vehicle flies and how each is entered; the others need an RC, which it lacks.
         self._mode_entries: dict[Mode, Callable[[], int]] = {
             Mode.HOLD: self._enter_hold_mode,
@@ -106,6 +126,17 @@ class Autopilot:
         with self._lock:
             return self._breached
 
+    @property
+    def kept(self) -> tuple[Mode, str] | None:
+        """The battery failsafe's mode and reason while it is kept, else None."""
+        with self._lock:
+            return self._kept
+
+    def _position(self) -> Vec3:
+        """Where the autopilot believes it is (its estimate without the samples' noise)."""
+        here = self._dynamics.position
+        return here if self._estimator is None else self._estimator.believed(here)
+
     def status(self) -> tuple[bool, Mode, LandedState]:
         """(armed, mode, landed state) read together: what a heartbeat must announce."""
         with self._lock:
@@ -121,11 +152,16 @@ class Autopilot:
                     return mavlink.MAV_RESULT_ACCEPTED
                 if airborne and not force:
                     return self._refuse("Arming denied: the vehicle is in the air")
+                low = None if force else self._preflight_battery()
+                if low is not None:
+                    return self._refuse(f"Arming denied: {low}")
                 self._armed = True
                 self._touchdown_at = None
+                self._armed_wall = time.monotonic()
+                self._flew = airborne
                 if self._mode in (Mode.HOLD, Mode.POSCTL):
-                    self._target = self._dynamics.position
-                self._journal.event("armed")
+                    self._target = self._position()
+                self._journal.event("armed" + (" (forced)" if force else ""))
                 return mavlink.MAV_RESULT_ACCEPTED
             if not self._armed:
                 return mavlink.MAV_RESULT_ACCEPTED
@@ -140,6 +176,10 @@ class Autopilot:
         with self._lock:
             if not self._armed:
                 return self._refuse("Takeoff denied: disarmed")
+            if self._kept is not None:
+                return self._deny_kept("Takeoff")
+            if self._battery.charge_of(self._battery.remaining) >= Charge.CRITICAL:
+                return self._refuse(f"Takeoff denied: battery {self._battery.remaining:.0%}, critical")
             minimum = self._params.get("MIS_TAKEOFF_ALT")
             if alt_m is None:
                 alt_m = minimum
@@ -148,7 +188,7 @@ class Autopilot:
                     self._journal.say(CRITICAL, f"Using minimum takeoff altitude: {minimum:.2f} m")
                 alt_m = minimum
             alt_m = min(alt_m, self._dynamics.ceiling, self._fence_ceiling())
-            north, east, _ = self._dynamics.position
+            north, east, _ = self._position()
             self._switch(Mode.TAKEOFF)
             self._target = (north, east, -alt_m)
             if yaw is not None:
@@ -158,16 +198,22 @@ class Autopilot:
 
     def land(self) -> int:
         with self._lock:
+            if self._kept is not None:
+                self._kept = (Mode.LAND, self._kept[1])  # a battery failsafe's landing, now: kept as such
             self._switch(Mode.LAND)
-            north, east, _ = self._dynamics.position
+            north, east, _ = self._position()
             self._target = (north, east, 0.0)
             return mavlink.MAV_RESULT_ACCEPTED
 
     def rtl(self, why: str | None = None) -> int:
         """Return to launch: climb to RTL_RETURN_ALT (or stay higher), fly home, land, disarm."""
         with self._lock:
+            if self._kept is not None and self._kept[0] != Mode.RTL:
+                return self._deny_kept("Return")
             if not (self._armed and self._dynamics.airborne):
                 return self._refuse("Return denied: not flying")
+            if not self._gps:
+                return self._refuse("Return denied: no global position (no GPS)")
             ceiling = min(self._dynamics.ceiling, self._fence_ceiling())
             self._rtl_alt = min(max(self._dynamics.altitude, self._params.get("RTL_RETURN_ALT")), ceiling)
             self._rtl_phase = "climb"
@@ -178,6 +224,8 @@ class Autopilot:
         with self._lock:
             if not self._armed:
                 return self._refuse("Hold denied: disarmed")
+            if self._kept is not None:
+                return self._deny_kept("Hold")
             self._enter_hold()
             return mavlink.MAV_RESULT_ACCEPTED
 
@@ -187,7 +235,9 @@ class Autopilot:
         with self._lock:
             if not self._armed:
                 return self._refuse("Reposition denied: disarmed")
-            here_n, here_e, here_d = self._dynamics.position
+            if self._kept is not None:
+                return self._deny_kept("Reposition")
+            here_n, here_e, here_d = self._position()
             north = here_n if north is None else north
             east = here_e if east is None else east
             down = self._dynamics.clamp_down(here_d if down is None else down)
@@ -209,14 +259,18 @@ class Autopilot:
         if enter is None:
             return self._refuse(f"Mode {mode.name if mode else f'{main}.{sub}'} not available on this vehicle")
         with self._lock:
-            self._pending = None  # an operator's choice ends a failsafe's countdown
             if mode == self._mode:
                 return mavlink.MAV_RESULT_ACCEPTED
+            if self._kept is not None and mode != Mode.LAND:
+                return self._deny_kept(f"Mode {mode.name}")
+            self._pending = None  # an operator's choice ends a failsafe's countdown
             return enter()
 
     def start_mission(self) -> int:
         """MAV_CMD_MISSION_START: AUTO.MISSION from the current item."""
         with self._lock:
+            if self._kept is not None:
+                return self._deny_kept("Mission")
             return self._enter_mission()
 
     def change_speed(self, kind: int, speed: float) -> int:
@@ -238,14 +292,24 @@ class Autopilot:
     def setpoint(self, dt: float, wall_now: float) -> Setpoint | None:
         airborne = self._dynamics.airborne
         charge = self._battery.drain(dt, self._armed, airborne, self._dynamics.state().vel)
+        if self._estimator is not None:
+            self._estimator.advance(dt)
         if not self._armed:
             return None
         if airborne:
             self._failsafes(charge, wall_now)
-        up, down = self._params.get("MPC_Z_VEL_MAX_UP"), self._params.get("MPC_Z_VEL_MAX_DN")
-        speed = min(self._speed_xy, self._params.get("MPC_XY_VEL_MAX"))
-        here = self._dynamics.position
+        elif not self._flew and self._preflight_timeout(wall_now):
+            return None
+        if not self._armed:
+            return None
+        p = self._params
+        up, down = p.get("MPC_Z_VEL_MAX_UP"), p.get("MPC_Z_VEL_MAX_DN")
+        speed = min(self._speed_xy, p.get("MPC_XY_VEL_MAX"))
+        here = self._position()
+        if airborne and self._payload is not None:
+            self._payload.fly(here, self._dynamics.sim_time)
         self._landing = False
+        self._velocity = None
         if self._mode == Mode.OFFBOARD:
             self._offboard_target(wall_now, dt, speed, up, down)
         elif self._mode == Mode.MISSION:
@@ -261,17 +325,30 @@ class Autopilot:
         if self._mode == Mode.TAKEOFF:
             speed = 0.0  # a vertical climb, like PX4's takeoff
         target = (self._target[0], self._target[1], self._dynamics.clamp_down(self._target[2]))
-        return Setpoint(target, self._target_yaw, speed, up, down)
+        if self._estimator is not None:
+            target = self._estimator.truth_of(target)
+        return Setpoint(target, self._target_yaw, speed, up, down, velocity=self._velocity,
+                        accel_xy=p.get("MPC_ACC_HOR"), accel_up=p.get("MPC_ACC_UP_MAX"),
+                        accel_down=p.get("MPC_ACC_DOWN_MAX"), jerk=p.get("MPC_JERK_AUTO"))
 
     def _offboard_target(self, wall_now: float, dt: float, speed: float, up: float, down: float) -> None:
         if self._offboard.lost(wall_now):
             self._journal.event("offboard setpoints lost")
             self._enter_hold("offboard setpoints lost")
-        else:
-            target = self._offboard.target(self._dynamics.position, dt, speed, up, down)
-            if target is not None:
-                self._target = self._fenced(target)
-        yaw = self._offboard.yaw
+            return
+        here, vel = self._position(), self._dynamics.state().vel
+        command = self._offboard.command(self._target, vel, dt, speed, up, down)
+        if command is not None:
+            target, velocity = command
+            if velocity is not None:
+                # where the velocity would carry the vehicle before it could stop: kept inside the fence
+                lookahead = math.hypot(*(v or 0.0 for v in velocity)) / max(self._params.get("MPC_ACC_HOR"), 0.1)
+                ahead = tuple(h + (v or 0.0) * lookahead for h, v in zip(here, velocity))
+                if self._fence.violation(ahead) is not None:
+                    target, velocity = self._fenced(ahead), None
+            self._target = self._fenced(target)
+            self._velocity = velocity
+        yaw = self._offboard.yaw(self._target_yaw, dt)
         if yaw is not None:
             self._target_yaw = yaw
 
@@ -287,13 +364,16 @@ class Autopilot:
         return self._fence.clamp(target)
 
     def _mission_target(self, here: Vec3, airborne: bool, speed: float) -> float:
-        step = self._mission.steer(here, airborne, self._dynamics.sim_time)
+        step = self._mission.steer(here, airborne, self._dynamics.sim_time, self._act)
         if step is None:
             if not airborne:
                 self._disarm_soon()
-            return speed
+            return min(self._speed_xy, self._params.get("MPC_XY_VEL_MAX"))  # an item may have changed it
         if step.leg is Leg.RETURN:
             self.rtl("mission")
+            return speed
+        speed = min(self._speed_xy, self._params.get("MPC_XY_VEL_MAX"))
+        if step.leg is Leg.HOLD:
             return speed
         self._target = step.target
         if step.leg is Leg.LAND:
@@ -319,6 +399,14 @@ class Autopilot:
         self._landing = True
         return speed
 
+    def _act(self, item: Item) -> None:
+        """A mission's DO item, reached: the speed is the autopilot's, the camera and gimbal the payload's."""
+        if item.command == mavlink.MAV_CMD_DO_CHANGE_SPEED:
+            self.change_speed(int(item.param1) if math.isfinite(item.param1) else 1, item.param2)
+        elif self._payload is not None:
+            self._payload.on_item(item.command, (item.param1, item.param2, item.param3, item.param4, item.x, item.y,
+                                                 item.z), self._position(), self._dynamics.sim_time)
+
     def on_moved(self, setpoint: Setpoint) -> None:
         alt = self._dynamics.altitude
         if self._mode == Mode.TAKEOFF and abs(alt + setpoint.target[2]) <= TAKEOFF_DONE_M:
@@ -332,6 +420,7 @@ class Autopilot:
         now = self._dynamics.sim_time
         if contact is Contact.LIFTOFF:
             self._touchdown_at = None
+            self._flew = True
         elif contact is Contact.TOUCHDOWN:
             self._touchdown_at = now
         elif (self._armed and not self._dynamics.airborne and self._mode == Mode.LAND
@@ -346,10 +435,14 @@ class Autopilot:
     def _failsafes(self, charge: Charge | None, wall_now: float) -> None:
         act = int(self._params.get("COM_LOW_BAT_ACT"))
         if charge is Charge.CRITICAL and act in (2, 3):
-            self._failsafe(Mode.RTL if act == 3 else Mode.LAND, "critical battery")
+            self._failsafe(Mode.RTL if act == 3 else Mode.LAND, "critical battery", keep=True)
         elif charge is Charge.EMERGENCY and act in (2, 3):
-            self._failsafe(Mode.LAND, "emergency battery")
-        outside = self._fence.violation(self._dynamics.position)
+            self._failsafe(Mode.LAND, "emergency battery", keep=True)
+        if self._battery.remaining <= 0.0 and (self._kept is None or self._kept[0] != Mode.LAND):
+            # an empty pack cannot wait for the operator's choice of action
+            self._journal.say(EMERGENCY, "Battery depleted: landing")
+            self._failsafe(Mode.LAND, "battery depleted", keep=True)
+        outside = self._fence.violation(self._position())
         if outside is not None and not self._breached:
             self._journal.say(CRITICAL, f"Geofence violated: {outside}")
             action = GF_ACTIONS.get(int(self._params.get("GF_ACTION")))
@@ -381,18 +474,31 @@ class Autopilot:
                 self._pending = None
         self._link_lost = lost and action is not None
 
-    def _failsafe(self, mode: Mode, why: str) -> None:
+    def land_now(self, why: str) -> None:
+        """Land where it is, kept as a failsafe's landing is (the process is told to stop in the air)."""
+        with self._lock:
+            if self._armed and self._dynamics.airborne:
+                self._failsafe(Mode.LAND, why, keep=True)
+
+    def _failsafe(self, mode: Mode, why: str, keep: bool = False) -> None:
         """Fly `mode` because of `why`; a landing or return already under way is kept (a land
-        is never turned back into a return)."""
+        is never turned back into a return). With `keep` (a battery failsafe) the mode flown is
+        kept until disarmed: commands that would leave it are denied."""
+        if keep and self._mode in (Mode.LAND, Mode.RTL) and (self._kept is None or self._mode == Mode.LAND):
+            self._kept = (self._mode, why)  # a return or landing already flown is now the failsafe's
         if self._mode == mode or self._mode == Mode.LAND or (self._mode == Mode.RTL and mode != Mode.LAND):
             return
         self._journal.say(CRITICAL, f"Failsafe: {why}, {mode.name}")
         if mode == Mode.RTL and self.rtl(why) == mavlink.MAV_RESULT_ACCEPTED:
-            return
-        if mode == Mode.HOLD:
+            flown = Mode.RTL
+        elif mode == Mode.HOLD:
             self._enter_hold(why)
+            flown = Mode.HOLD
         else:
             self.land()
+            flown = Mode.LAND
+        if keep:
+            self._kept = (flown, why)
 
     # --- transitions (the caller holds the lock) ----------------------------------------------
 
@@ -407,10 +513,33 @@ class Autopilot:
         self._journal.say(CRITICAL, why)
         return mavlink.MAV_RESULT_DENIED
 
+    def _deny_kept(self, what: str) -> int:
+        mode, why = self._kept
+        return self._refuse(f"{what} denied: failsafe {mode.name} ({why}) in progress")
+
+    def _preflight_battery(self) -> str | None:
+        """Why the battery forbids arming (PX4: at or below BAT_LOW_THR, or below COM_ARM_BAT_MIN), or None."""
+        left = self._battery.remaining
+        low, minimum = self._params.get("BAT_LOW_THR"), self._params.get("COM_ARM_BAT_MIN")
+        if self._battery.charge_of(left) >= Charge.LOW:
+            return f"low battery ({left:.0%}, BAT_LOW_THR {low:.0%})"
+        if left < minimum:
+            return f"battery {left:.0%} < COM_ARM_BAT_MIN {minimum:.0%}"
+        return None
+
+    def _preflight_timeout(self, wall_now: float) -> bool:
+        """Disarm a vehicle armed on the ground that did not take off within COM_DISARM_PRFLT s."""
+        limit = self._params.get("COM_DISARM_PRFLT")
+        if limit > 0 and wall_now - self._armed_wall >= limit and self._mode not in (Mode.TAKEOFF, Mode.MISSION):
+            self._disarm(f"disarmed: no takeoff within {limit:g} s of arming")
+            return True
+        return False
+
     def _disarm(self, why: str) -> None:
         self._armed = False
         self._touchdown_at = None
         self._pending = None
+        self._kept = None
         if self._mode in (Mode.LAND, Mode.TAKEOFF, Mode.RTL, Mode.MISSION):
             self._switch(Mode.HOLD, why)  # so that the next arm + takeoff starts clean
         self._journal.event(why)
@@ -423,7 +552,7 @@ class Autopilot:
     def _enter_hold(self, why: str | None = None) -> None:
         """Switch to HOLD, braking at the current position."""
         self._switch(Mode.HOLD, why)
-        self._target = self._dynamics.position
+        self._target = self._position()
 
     def _enter_hold_mode(self) -> int:
         self._enter_hold()
@@ -432,14 +561,16 @@ class Autopilot:
     def _enter_position(self) -> int:
         """POSCTL without sticks: centred sticks hold the position, which is all this vehicle can do."""
         self._switch(Mode.POSCTL)
-        self._target = self._dynamics.position
+        self._target = self._position()
         return mavlink.MAV_RESULT_ACCEPTED
 
     def _enter_mission(self) -> int:
         items = self._mission.items
         if not items:
             return self._refuse("Mission denied: no mission uploaded")
-        here = self._dynamics.position
+        if not self._gps:
+            return self._refuse("Mission denied: no global position (no GPS)")
+        here = self._position()
         outside = next((v for v in map(self._fence.violation, self._mission.points(here)) if v), None)
         if outside is not None:
             return self._refuse(f"Mission denied: an item is outside the geofence ({outside})")

@@ -58,6 +58,7 @@ class Battery:
             self._used_mah += self._current_a * dt / 3.6
             charge = self.charge_of(self.remaining)
             if charge <= self._charge:
+                self._charge = charge  # a fuller pack (a new BAT1_CAPACITY) starts its warnings over
                 return None
             self._charge = charge
         severity, text = WARNINGS[charge]

@@ -80,6 +80,7 @@ class Commands:
             m.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
                 lambda p, frame: (m.MAV_RESULT_ACCEPTED, telemetry.message(m.MAVLINK_MSG_ID_AUTOPILOT_VERSION)),
             m.MAV_CMD_SET_MESSAGE_INTERVAL: lambda p, frame: (telemetry.set_interval(p[0], p[1]), None),
+            m.MAV_CMD_GET_MESSAGE_INTERVAL: self._get_message_interval,
         }
         # Everything else from a ground station needs no answer.
         self._messages: dict[str, Callable[[object], None]] = {
@@ -91,6 +92,7 @@ class Commands:
             "PARAM_REQUEST_LIST": self._to_component(params.on_request_list),
             "PARAM_SET": self._to_component(params.on_set),
             "SET_POSITION_TARGET_LOCAL_NED": self._to_component(offboard.on_setpoint),
+            "SET_POSITION_TARGET_GLOBAL_INT": self._to_component(offboard.on_global_setpoint),
             "SET_MODE": self._to_system(self._set_mode),
             "TIMESYNC": self._timesync,
             "PING": self._ping,
@@ -200,6 +202,12 @@ class Commands:
             return mavlink.MAV_RESULT_UNSUPPORTED, None
         return mavlink.MAV_RESULT_ACCEPTED, msg
 
+    def _get_message_interval(self, p: Params7, frame: int | None) -> Reply:
+        msg = self._telemetry.interval(p[0])
+        if msg is None:
+            return mavlink.MAV_RESULT_DENIED, None
+        return mavlink.MAV_RESULT_ACCEPTED, msg
+
     def _reposition(self, p: Params7, frame: int | None) -> Reply:
         if not self._autopilot.armed:
             # refused before the target is looked at, as PX4 does; the autopilot checks again
@@ -218,6 +226,9 @@ class Commands:
             relative = frame in RELATIVE_FRAMES
         north = east = down = None
         if has_xy:
+            if not cfg.gps:
+                self._journal.say(CRITICAL, "Reposition denied: no global position (no GPS)")
+                return mavlink.MAV_RESULT_DENIED, None
             if not (abs(lat) <= 90 and abs(lon) <= 180):
                 return mavlink.MAV_RESULT_DENIED, None
             north, east = geo_to_ned(lat, lon, cfg.home_lat, cfg.home_lon)

@@ -21,6 +21,14 @@ class VehicleConfig:
     `gcs_url` opens a second link for a ground station (QGroundControl, MAVProxy), signed
     with MAVLink 2 `signing_key` (32 bytes) if given: unsigned frames are refused there.
     Every socket is bound to `bind_host`, loopback unless the operator opens it on purpose.
+
+    The flight link (`url`) answers its companion only: the system `companion_system_id`, or
+    (None) the first system that sends valid MAVLink there, at the address it sent from; a
+    stranger's frames are refused and counted (see `link.py`).
+
+    `gps` False is an indoor vehicle: a local frame only (no global position, no home from
+    GPS). `position_noise_m`, `position_bias_m` and `attitude_noise_deg` make the telemetry an
+    estimate (see `estimator.py`); 0, the default, reports the truth.
     """
 
     url: str = "udpout:127.0.0.1:14540"
@@ -40,16 +48,29 @@ class VehicleConfig:
     disarm_after_land_s: float = 2.0  # COM_DISARM_LAND, simulated seconds
     gcs_url: str | None = None
     signing_key: bytes | None = None
+    # A third link for a reader of the pose (the world's camera follows the vehicle there), like PX4
+    # SITL's onboard link: unsigned, and the ground station's link stays the operator's.
+    pose_url: str | None = None
     bind_host: str = "127.0.0.1"
     hover_wobble_deg: float = 0.0  # amplitude of the roll/pitch wobble in the air (see dynamics.Wobble)
-    seed: int = 0                  # of the wobble
+    seed: int = 0                  # of the wobble and the estimator's noise
+    # MPC_ACC_HOR / MPC_ACC_UP_MAX / MPC_ACC_DOWN_MAX / MPC_JERK_AUTO (see dynamics.step_limited)
+    max_accel_m_s2: float = 5.0
+    max_accel_up_m_s2: float = 4.0
+    max_accel_down_m_s2: float = 3.0
+    jerk_m_s3: float = 8.0
+    companion_system_id: int | None = None
+    gps: bool = True
+    position_noise_m: float = 0.0     # white noise (1 sigma) on the reported position
+    position_bias_m: float = 0.0      # the reported position's slowly wandering error (1 sigma)
+    attitude_noise_deg: float = 0.0   # white noise (1 sigma) on the reported roll, pitch and yaw
 
     def __post_init__(self) -> None:
         check_home(self.home_lat, self.home_lon)
         if not 1 <= self.system_id <= 255:
             raise MissionError(f"vehicle system id {self.system_id} is outside 1..255")
         for name in ("max_speed_m_s", "cruise_speed_m_s", "max_climb_m_s", "time_scale", "takeoff_alt_m", "max_alt_m",
-                     "land_speed_m_s"):
+                     "land_speed_m_s", "max_accel_m_s2", "max_accel_up_m_s2", "max_accel_down_m_s2", "jerk_m_s3"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise MissionError(f"vehicle {name} must be a positive number, got {value}")
@@ -58,12 +79,32 @@ class VehicleConfig:
             raise MissionError("vehicle home_alt_m and disarm_after_land_s must be finite (the latter >= 0)")
         if not (math.isfinite(self.hover_wobble_deg) and 0 <= self.hover_wobble_deg <= 30):
             raise MissionError(f"vehicle hover_wobble_deg must be in [0, 30], got {self.hover_wobble_deg}")
+        for name, top in (("position_noise_m", 100.0), ("position_bias_m", 100.0), ("attitude_noise_deg", 30.0)):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and 0 <= value <= top):
+                raise MissionError(f"vehicle {name} must be in [0, {top:g}], got {value}")
+        if self.companion_system_id is not None and not 1 <= self.companion_system_id <= 255:
+            raise MissionError(f"vehicle companion system id {self.companion_system_id} is outside 1..255")
         if self.takeoff_alt_m > self.max_alt_m:
             raise MissionError(f"vehicle takeoff_alt_m {self.takeoff_alt_m} is above max_alt_m {self.max_alt_m}")
         if self.signing_key is not None and (self.gcs_url is None or len(self.signing_key) != 32):
             raise MissionError("a MAVLink signing key must be 32 bytes and needs a ground-station link (gcs_url)")
-        for url in filter(None, (self.url, self.gcs_url)):
+        for url in filter(None, (self.url, self.gcs_url, self.pose_url)):
             check_exposure(url, self.bind_host)
+
+
+# Named sets of the options above; a preset's values are defaults that explicit options override.
+PRESETS: dict[str, dict] = {
+    "outdoor": {},  # PX4 SITL as it comes: GPS, telemetry as the truth
+    "indoor": {"gps": False},  # no GPS: a local frame only, as PX4 with vision or optical flow
+}
+
+
+def preset(name: str, **options) -> VehicleConfig:
+    """A configuration from preset `name` (see PRESETS), `options` overriding it."""
+    if name not in PRESETS:
+        raise MissionError(f"unknown vehicle preset {name!r}; known: {', '.join(PRESETS)}")
+    return VehicleConfig(**{**PRESETS[name], **options})
 
 
 def _is_loopback(host: str) -> bool:

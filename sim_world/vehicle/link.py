@@ -4,10 +4,18 @@ what arrives, signing, and sending.
 Every socket is bound to `config.bind_host` (loopback unless the operator opens it on
 purpose): a `udpout` socket left unbound would take 0.0.0.0 at its first send and accept
 commands from any host that finds its port.
+
+The flight link (channel "vehicle") answers its companion only, as a serial link to a
+companion computer would: the system `config.companion_system_id`, or the first system whose
+valid MAVLink arrives (for `udpout`, from the address the link sends to), bound to the address it
+sent from. Another process's frames there, however well formed (an unsigned force-disarm), are
+refused and counted (`refused_strangers`), and each new stranger is said as STATUSTEXT. The
+ground-station link stays open to several ground stations; signing guards it.
 """
 from __future__ import annotations
 
 import select
+import socket
 import threading
 import time
 from dataclasses import dataclass, field
@@ -19,10 +27,11 @@ from pymavlink.dialects.v20 import common as mavlink
 from protocol.errors import MissionError
 
 from .config import VehicleConfig
-from .journal import Journal
+from .journal import CRITICAL, Journal
 
 COMPONENT_ID = mavlink.MAV_COMP_ID_AUTOPILOT1
 SIGNING_EPOCH = 1420070400  # MAVLink 2 signing timestamps count 10 us units from 2015-01-01
+STRANGERS_SAID = 16  # strangers named in a STATUSTEXT each; the rest are counted and warned about
 
 
 def signing_timestamp() -> int:
@@ -63,8 +72,13 @@ class Link:
         self.channels = [Channel("vehicle", config.url, None)]
         if config.gcs_url:
             self.channels.append(Channel("gcs", config.gcs_url, config.signing_key))
+        if config.pose_url:
+            self.channels.append(Channel("pose", config.pose_url, None))
         self._handling = threading.local()
         self._bad_frames = 0
+        self._companion: tuple[int, object] | None = None  # (system id, address) the flight link answers
+        self._strangers: set[tuple[int, object]] = set()
+        self._refused_strangers = 0
 
     def open(self) -> None:
         try:
@@ -119,6 +133,18 @@ class Link:
     def bad_frames(self) -> int:
         with self._lock:
             return self._bad_frames
+
+    @property
+    def refused_strangers(self) -> int:
+        """Valid frames the flight link refused because they came from another system or address than its companion."""
+        with self._lock:
+            return self._refused_strangers
+
+    @property
+    def companion(self) -> tuple[int, object] | None:
+        """(system id, address) of the flight link's companion, once it has spoken."""
+        with self._lock:
+            return self._companion
 
     @property
     def refused_unsigned(self) -> int:
@@ -199,15 +225,16 @@ class Link:
             data = data.encode("latin-1")
         self._handling.channel = ch
         try:
-            valid = self._deliver(ch, data, is_udp, handle)
+            valid = self._deliver(ch, data, is_udp, handle, addr)
         finally:
             self._handling.channel = None
         if valid and is_udp and conn.udp_server and addr is not None:
             self._learn_peer(ch, addr, greeting)
         return True
 
-    def _deliver(self, ch: Channel, data: bytes, is_udp: bool, handle: Callable[[object], None]) -> bool:
-        """Parse one read's bytes and hand on its messages; whether any was valid MAVLink."""
+    def _deliver(self, ch: Channel, data: bytes, is_udp: bool, handle: Callable[[object], None], addr=None) -> bool:
+        """Parse one read's bytes and hand on its messages; whether any was valid MAVLink from a
+        sender this channel answers."""
         parser = ch.parser
         try:
             msgs = parser.parse_buffer(data) or []
@@ -234,12 +261,61 @@ class Link:
                 continue
             if msg.get_srcSystem() == self._config.system_id and msg.get_srcComponent() == COMPONENT_ID:
                 continue  # our own frames echoed back
+            if ch.name == "vehicle" and not self._admit(ch, msg.get_srcSystem(), addr):
+                continue
+            if ch.name == "pose" and not self._from_peer(ch, addr):
+                # the pose reader's link answers the reader it sends to, not any process that finds its port
+                self._refuse_stranger(msg.get_srcSystem(), addr, "pose link", "not its reader")
+                continue
             valid = True
             try:
                 handle(msg)
             except Exception as exc:  # a well-formed frame with absurd content
                 self.bad(f"cannot handle {msg.get_type()}: {type(exc).__name__}: {exc}")
         return valid
+
+    def _admit(self, ch: Channel, system: int, addr) -> bool:
+        """Whether the flight link answers `system` at `addr`: its companion, or the first to speak
+        (the configured system id; for `udpout`, from the address the link sends to)."""
+        with self._lock:
+            companion = self._companion
+            if companion is None:
+                wanted = self._config.companion_system_id
+                if (wanted is None or system == wanted) and self._from_peer(ch, addr):
+                    self._companion = (system, addr)
+                    where = f" at {addr[0]}:{addr[1]}" if addr else ""
+                    self._journal.event(f"companion: system {system}{where} on the flight link")
+                    return True
+            elif companion == (system, addr):
+                return True
+        self._refuse_stranger(system, addr, "flight link", "not the companion")
+        return False
+
+    def _refuse_stranger(self, system: int, addr, link: str, why: str) -> None:
+        with self._lock:
+            self._refused_strangers += 1
+            stranger = (system, addr)
+            new = stranger not in self._strangers and len(self._strangers) < STRANGERS_SAID
+            if new:
+                self._strangers.add(stranger)
+        where = f" at {addr[0]}:{addr[1]}" if addr else ""
+        if new:
+            self._journal.say(CRITICAL, f"{link.capitalize()}: refused system {system}{where}, {why}")
+        else:
+            self._journal.warn(f"{link}: refused a frame from system {system}{where} ({why})")
+
+    @staticmethod
+    def _from_peer(ch: Channel, addr) -> bool:
+        """For a `udpout` link, whether `addr` is the address it sends to; any address otherwise."""
+        conn = ch.conn
+        if addr is None or not isinstance(conn, mavutil.mavudp) or conn.udp_server:
+            return True
+        host, port = conn.destination_addr
+        try:
+            host = socket.gethostbyname(host)
+        except OSError:
+            return False
+        return (host, port) == tuple(addr[:2])
 
     def _learn_peer(self, ch: Channel, addr, greeting: Callable[[], object]) -> None:
         # Only a sender of valid MAVLink becomes a peer: garbage must not redirect telemetry.

@@ -5,6 +5,10 @@ where to fly now, how, and whether the item is done. `Mission.steer` advances th
 items, announcing MISSION_ITEM_REACHED and MISSION_CURRENT through its callbacks; the
 autopilot applies the leg. Items are kept as MISSION_ITEM_INT fields so that a download
 returns exactly what was uploaded.
+
+Besides the flight items (`HANDLERS`), the DO items QGroundControl's survey and MAVSDK's
+Mission plugin put between them (`ACTIONS`: speed, camera, gimbal) are done as they are
+reached, by the autopilot's `act`; any other command is refused at upload.
 """
 from __future__ import annotations
 
@@ -60,6 +64,7 @@ class Item:
 class Leg(enum.Enum):
     """How a leg is flown."""
 
+    HOLD = "hold"  # stay on the current target
     FLY = "fly"  # to the target at cruise speed
     CLIMB = "climb"  # straight up or down to the target's altitude
     LAND = "land"  # descend where the vehicle is
@@ -148,23 +153,52 @@ def _return(item: Item, ctx: Context) -> Step:
     return Step(Leg.RETURN, None, done=True)
 
 
-# MAV_CMD -> how the item is flown; any other command is refused at upload (MAV_MISSION_UNSUPPORTED).
+def _delay(item: Item, ctx: Context) -> Step:
+    """NAV_DELAY: hold where the last item left the vehicle for param1 seconds."""
+    return Step(Leg.HOLD, None, done=_held(ctx, True, item.param1))
+
+
+def _loiter_unlimited(item: Item, ctx: Context) -> Step:
+    return Step(Leg.FLY, item_position(item, ctx))
+
+
+# MAV_CMD -> how the item is flown.
 HANDLERS: dict[int, Callable[[Item, Context], Step]] = {
     m.MAV_CMD_NAV_TAKEOFF: _takeoff,
     m.MAV_CMD_NAV_WAYPOINT: _waypoint,
     m.MAV_CMD_NAV_LOITER_TIME: _loiter_time,
+    m.MAV_CMD_NAV_LOITER_UNLIM: _loiter_unlimited,
     m.MAV_CMD_NAV_LAND: _land,
     m.MAV_CMD_NAV_RETURN_TO_LAUNCH: _return,
+    m.MAV_CMD_NAV_DELAY: _delay,
+}
+# Flight items that name no place: their frame and coordinates are not looked at.
+PLACELESS = {m.MAV_CMD_NAV_RETURN_TO_LAUNCH, m.MAV_CMD_NAV_DELAY}
+# DO items done as they are reached (by the autopilot's `act`), whatever their frame: the speed
+# and the camera and gimbal actions of QGroundControl's survey and MAVSDK's mission items.
+ACTIONS = {
+    m.MAV_CMD_DO_CHANGE_SPEED,
+    m.MAV_CMD_IMAGE_START_CAPTURE, m.MAV_CMD_IMAGE_STOP_CAPTURE, m.MAV_CMD_DO_SET_CAM_TRIGG_DIST,
+    m.MAV_CMD_DO_SET_CAM_TRIGG_INTERVAL, m.MAV_CMD_DO_DIGICAM_CONTROL, m.MAV_CMD_DO_DIGICAM_CONFIGURE,
+    m.MAV_CMD_SET_CAMERA_MODE, m.MAV_CMD_VIDEO_START_CAPTURE, m.MAV_CMD_VIDEO_STOP_CAPTURE,
+    m.MAV_CMD_DO_MOUNT_CONTROL, m.MAV_CMD_DO_MOUNT_CONFIGURE, m.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW,
+    m.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE,
 }
 
 
 def check_item(item: Item) -> int:
-    """MAV_MISSION_ACCEPTED, or the MAV_MISSION_RESULT that refuses the item."""
+    """MAV_MISSION_ACCEPTED, or the MAV_MISSION_RESULT that refuses the item (any other command: MAV_MISSION_UNSUPPORTED)."""
+    if item.command in ACTIONS:
+        return m.MAV_MISSION_ACCEPTED
     if item.command not in HANDLERS:
         return m.MAV_MISSION_UNSUPPORTED
-    if item.frame not in GLOBAL_FRAMES and item.command != m.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+    if item.command == m.MAV_CMD_NAV_DELAY and not (math.isfinite(item.param1) and item.param1 >= 0):
+        return m.MAV_MISSION_INVALID_PARAM1  # a delay until a time of day: not flown here
+    if item.command in PLACELESS:
+        return m.MAV_MISSION_ACCEPTED
+    if item.frame not in GLOBAL_FRAMES:
         return m.MAV_MISSION_UNSUPPORTED_FRAME
-    if not math.isfinite(item.z) and item.command != m.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+    if not math.isfinite(item.z):
         return m.MAV_MISSION_INVALID_PARAM7
     if not (abs(item.x) <= 90e7 and abs(item.y) <= 180e7):
         return m.MAV_MISSION_INVALID_PARAM5_X
@@ -216,17 +250,21 @@ class Mission:
     def points(self, here: Vec3) -> list[Vec3]:
         """The local NED points of the items that name one (for the geofence's check)."""
         ctx = self._context(here, True, 0.0)
-        return [item_position(i, ctx) for i in self.items if i.command != m.MAV_CMD_NAV_RETURN_TO_LAUNCH]
+        return [item_position(i, ctx) for i in self.items if i.command in HANDLERS and i.command not in PLACELESS]
 
     def _context(self, pos: Vec3, airborne: bool, sim_time: float) -> Context:
         return Context(pos, airborne, sim_time, self._params, self._home, self._arrived_at)
 
-    def steer(self, pos: Vec3, airborne: bool, sim_time: float) -> Step | None:
-        """The current item's step, after moving past every item already done; None once the
-        mission is over (the autopilot holds)."""
+    def steer(self, pos: Vec3, airborne: bool, sim_time: float, act: Callable[[Item], None]) -> Step | None:
+        """The current item's step, after moving past every item already done (`act` doing each
+        DO item); None once the mission is over (the autopilot holds)."""
         with self._lock:
             while not self.finished and self._current < len(self._items):
                 item = self._items[self._current]
+                if item.command in ACTIONS:
+                    act(item)
+                    self._advance(item)
+                    continue
                 if not airborne and item.command not in (m.MAV_CMD_NAV_TAKEOFF, m.MAV_CMD_NAV_LAND):
                     # on the ground with a mission that does not start with a takeoff: climb first, as PX4 does
                     return Step(Leg.CLIMB, (pos[0], pos[1], -self._params.get("MIS_TAKEOFF_ALT")))
@@ -235,14 +273,24 @@ class Mission:
                 self._arrived_at = ctx.arrived_at
                 if not step.done:
                     return step
-                self._on_reached(item.seq)
-                self._current += 1
-                self._arrived_at = None
-                if step.leg is Leg.LAND or self._current >= len(self._items):
-                    self.finished = True  # a mission ends on the ground after its landing
-                    return step if step.leg is Leg.RETURN else None
-                self._on_current(self._current)
+                self._advance(item)
+                if step.leg is Leg.LAND:
+                    # a mission ends on the ground after its landing: DO items after it are done, the rest is not flown
+                    while self._current < len(self._items) and self._items[self._current].command in ACTIONS:
+                        act(self._items[self._current])
+                        self._advance(self._items[self._current])
+                    self.finished = True
+                    return None
                 if step.leg is Leg.RETURN:
+                    self.finished = self._current >= len(self._items)
                     return step
             self.finished = True
             return None
+
+    def _advance(self, item: Item) -> None:
+        """`item` is done: say so, and make the next one current (if there is one)."""
+        self._on_reached(item.seq)
+        self._current += 1
+        self._arrived_at = None
+        if self._current < len(self._items):
+            self._on_current(self._current)

@@ -21,6 +21,8 @@ PROTOCOL_TIMEOUT_S = 5.0  # PX4's MAVLINK_MISSION_PROTOCOL_TIMEOUT_DEFAULT
 RESULT_NAMES = {v: k for k, v in vars(m).items() if k.startswith("MAV_MISSION_") and isinstance(v, int)
                 and k not in ("MAV_MISSION_TYPE_MISSION", "MAV_MISSION_TYPE_FENCE", "MAV_MISSION_TYPE_RALLY",
                               "MAV_MISSION_TYPE_ALL")}
+COMMAND_NAMES = {v: k[len("MAV_CMD_"):] for k, v in vars(m).items() if k.startswith("MAV_CMD_") and isinstance(v, int)}
+FRAME_NAMES = {v: k[len("MAV_FRAME_"):] for k, v in vars(m).items() if k.startswith("MAV_FRAME_") and isinstance(v, int)}
 
 
 @dataclass
@@ -96,8 +98,9 @@ class MissionService:
             item = Item.of(msg)
             result = check_item(item)
             if result != m.MAV_MISSION_ACCEPTED:
-                self._abort(result, f"Mission rejected: item {item.seq} command {item.command} frame {item.frame}: "
-                                    f"{RESULT_NAMES.get(result, result)}")
+                self._abort(result, f"Mission rejected: item {item.seq} "
+                                    f"{COMMAND_NAMES.get(item.command, item.command)} ({item.command}) frame "
+                                    f"{FRAME_NAMES.get(item.frame, item.frame)}: {RESULT_NAMES.get(result, result)}")
                 return
             up.items.append(item)
             now = time.monotonic()

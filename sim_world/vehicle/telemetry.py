@@ -1,7 +1,13 @@
 """Telemetry: the messages the vehicle reports and the streams that carry them.
 
 Streams run on wall time, not simulated time: the ground station's own timeouts (and
-the rates it asks for with SET_MESSAGE_INTERVAL) are in wall seconds.
+the rates it asks for with SET_MESSAGE_INTERVAL) are in wall seconds. Each link has its own
+streams, as PX4's MAVLink instances do: SET_MESSAGE_INTERVAL changes the rate on the link it
+came from only (a ground station silencing a stream does not silence the companion's), and
+MAV_CMD_GET_MESSAGE_INTERVAL answers that link's rate.
+
+Position and attitude are the estimator's (see `estimator.py`); an indoor vehicle (no GPS) has
+no global position, GPS or home to report: LOCAL_POSITION_NED is its frame.
 """
 from __future__ import annotations
 
@@ -17,7 +23,8 @@ from protocol.geo import ned_to_geo
 from .autopilot import Autopilot
 from .battery import Battery
 from .config import VehicleConfig
-from .dynamics import Dynamics
+from .dynamics import Dynamics, State
+from .estimator import Estimator
 from .journal import Journal
 from .link import Link
 from .mission import Mission
@@ -26,6 +33,9 @@ from .modes import AUTO_MODES, Mode
 HEARTBEAT_PERIOD_S = 1.0
 MAX_STREAM_HZ = 100.0
 PX4_VERSION = (1 << 24) | (15 << 16) | (0 << 8) | 255  # 1.15.0 release, PX4's encoding
+m = mavlink
+GLOBAL_ONLY = (m.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, m.MAVLINK_MSG_ID_GPS_RAW_INT, m.MAVLINK_MSG_ID_HOME_POSITION,
+               m.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN)  # what a vehicle without GPS has not
 
 
 class Telemetry:
@@ -33,8 +43,10 @@ class Telemetry:
     sends the streams at their rates."""
 
     def __init__(self, config: VehicleConfig, lock: threading.RLock, journal: Journal, link: Link,
-                 dynamics: Dynamics, autopilot: Autopilot, battery: Battery, mission: Mission):
+                 dynamics: Dynamics, autopilot: Autopilot, battery: Battery, mission: Mission,
+                 estimator: Estimator | None = None):
         self._config = config
+        self._estimator = estimator or Estimator(config, lock)
         self._battery = battery
         self._mission = mission
         self._lock = lock
@@ -58,7 +70,13 @@ class Telemetry:
             mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self._autopilot_version,
             mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: self._battery_status,
             mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: self.mission_current,
+            mavlink.MAVLINK_MSG_ID_ALTITUDE: self._altitude,
+            mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: self._attitude_quaternion,
+            mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: self._estimator_status,
         }
+        if not config.gps:
+            for mid in GLOBAL_ONLY:
+                del self._builders[mid]
         self._default_rates_hz = {
             mavlink.MAVLINK_MSG_ID_HEARTBEAT: 1.0 / HEARTBEAT_PERIOD_S,
             mavlink.MAVLINK_MSG_ID_SYS_STATUS: 2.0,
@@ -71,9 +89,14 @@ class Telemetry:
             mavlink.MAVLINK_MSG_ID_VFR_HUD: 4.0,
             mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0,
             mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
+            mavlink.MAVLINK_MSG_ID_ALTITUDE: 5.0,
+            mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 10.0,
+            mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 1.0,
         }
-        # message id -> period in wall seconds; SET_MESSAGE_INTERVAL changes it
-        self._streams: dict[int, float] = {mid: 1.0 / hz for mid, hz in self._default_rates_hz.items()}
+        self._default_rates_hz = {mid: hz for mid, hz in self._default_rates_hz.items() if mid in self._builders}
+        # link name -> message id -> period in wall seconds; SET_MESSAGE_INTERVAL changes its own link's
+        self._streams: dict[str, dict[int, float]] = {
+            ch.name: {mid: 1.0 / hz for mid, hz in self._default_rates_hz.items()} for ch in link.channels}
 
     def restart_clock(self) -> None:
         """Time since boot (in the messages that carry it) counts from now."""
@@ -84,50 +107,76 @@ class Telemetry:
         builder = self._builders.get(msg_id)
         return builder() if builder is not None else None
 
-    def set_interval(self, msg_id: float, interval_us: float) -> int:
-        """SET_MESSAGE_INTERVAL: < 0 stops the stream, 0 restores its default rate."""
+    def _streams_of(self, link: str | None) -> dict[int, float]:
+        """The streams of link `link` (the one whose message is being handled when None)."""
+        if link is None:
+            current = self._link.current
+            link = current.name if current is not None else self._link.channels[0].name
+        return self._streams.setdefault(link, {})
+
+    def set_interval(self, msg_id: float, interval_us: float, link: str | None = None) -> int:
+        """SET_MESSAGE_INTERVAL on one link (the asker's): < 0 stops the stream, 0 restores its default rate."""
         if not (math.isfinite(msg_id) and math.isfinite(interval_us)):
             return mavlink.MAV_RESULT_DENIED
         mid = int(msg_id)
         if mid not in self._builders:
             return mavlink.MAV_RESULT_UNSUPPORTED
         with self._lock:
+            streams = self._streams_of(link)
             if interval_us < 0:
-                self._streams.pop(mid, None)
+                streams.pop(mid, None)
             elif interval_us == 0:
                 if mid in self._default_rates_hz:
-                    self._streams[mid] = 1.0 / self._default_rates_hz[mid]
+                    streams[mid] = 1.0 / self._default_rates_hz[mid]
                 else:
-                    self._streams.pop(mid, None)
+                    streams.pop(mid, None)
             else:
-                self._streams[mid] = max(interval_us / 1e6, 1.0 / MAX_STREAM_HZ)
+                streams[mid] = max(interval_us / 1e6, 1.0 / MAX_STREAM_HZ)
         return mavlink.MAV_RESULT_ACCEPTED
 
+    def interval(self, msg_id: float, link: str | None = None):
+        """MESSAGE_INTERVAL for MAV_CMD_GET_MESSAGE_INTERVAL on one link (the asker's): the period in
+        microseconds, -1 if the stream is off, 0 if this vehicle has no such message; None for a bad id."""
+        if not (math.isfinite(msg_id) and 0 <= msg_id < 2**24):
+            return None
+        mid = int(msg_id)
+        with self._lock:
+            period = self._streams_of(link).get(mid)
+        interval_us = 0 if mid not in self._builders else -1 if period is None else round(period * 1e6)
+        return self._encoder.message_interval_encode(mid, interval_us)
+
     def run(self, stop: threading.Event) -> None:
-        """Send each stream when it is due until `stop`."""
-        next_due: dict[int, float] = {}
+        """Send each link's streams when they are due until `stop`; a message due on several links
+        is built once."""
+        next_due: dict[tuple[str, int], float] = {}
         last_status = None
+        channels = {ch.name: ch for ch in self._link.channels}
         while not stop.is_set():
             now = time.monotonic()
             with self._lock:
-                streams = dict(self._streams)
+                streams = {name: dict(self._streams_of(name)) for name in channels}
                 status = self._autopilot.status()
-            due = []
-            for mid, period in streams.items():
-                if now >= next_due.get(mid, 0.0):
-                    due.append(mid)
-                    next_due[mid] = max(next_due.get(mid, now) + period, now)  # no bursts to catch up
+            due: dict[int, list[str]] = {}
+            for name, mine in streams.items():
+                for mid, period in mine.items():
+                    key = (name, mid)
+                    if now >= next_due.get(key, 0.0):
+                        due.setdefault(mid, []).append(name)
+                        next_due[key] = max(next_due.get(key, now) + period, now)  # no bursts to catch up
             if status != last_status:
                 # Ground stations learn arming and mode only from heartbeats: tell them now,
-                # not up to a heartbeat period later.
-                due += [mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE]
+                # not up to a heartbeat period later (on every link).
+                for mid in (mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE):
+                    due[mid] = list(channels)
                 last_status = status
-            for mid in dict.fromkeys(due):
+            for mid, names in due.items():
                 try:
-                    self._link.send(self._builders[mid]())
+                    msg = self._builders[mid]()
+                    for name in dict.fromkeys(names):
+                        self._link.send(msg, channels[name])
                 except Exception as exc:
                     self._journal.warn(f"cannot send message {mid}: {type(exc).__name__}: {exc}")
-            pending = [t for mid, t in next_due.items() if mid in streams]
+            pending = [t for (name, mid), t in next_due.items() if mid in streams.get(name, {})]
             wait = min(pending, default=now + 0.05) - time.monotonic()
             stop.wait(min(0.02, max(0.001, wait)))
 
@@ -154,6 +203,8 @@ class Telemetry:
                    | s.MAV_SYS_STATUS_SENSOR_YAW_POSITION | s.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
                    | s.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL | s.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
                    | s.MAV_SYS_STATUS_AHRS | s.MAV_SYS_STATUS_SENSOR_BATTERY | s.MAV_SYS_STATUS_PREARM_CHECK)
+        if not self._config.gps:
+            sensors &= ~s.MAV_SYS_STATUS_SENSOR_GPS
         fence = s.MAV_SYS_STATUS_GEOFENCE
         enabled = sensors | (fence if self._autopilot.fence_enabled else 0)
         healthy = enabled & ~(fence if self._autopilot.fence_breached else 0)  # ground stations show a breach
@@ -205,20 +256,48 @@ class Telemetry:
         cfg = self._config
         return round(cfg.home_lat * 1e7), round(cfg.home_lon * 1e7), round(cfg.home_alt_m * 1000)
 
-    def _global_position_int(self):
+    def _estimate(self) -> tuple[State, tuple[float, float, float], tuple[float, float, float]]:
+        """(true state, estimated position, estimated roll/pitch/yaw): one sample of the estimator."""
         state = self._dynamics.state()
-        lat, lon, alt, rel = self._geo_of(state.pos)
+        est = self._estimator
+        return state, est.position(state.pos), est.attitude(state.roll, state.pitch, state.yaw)
+
+    def _global_position_int(self):
+        state, pos, (_, _, yaw) = self._estimate()
+        lat, lon, alt, rel = self._geo_of(pos)
         cm = [max(-32768, min(32767, round(v * 100))) for v in state.vel]
-        return self._encoder.global_position_int_encode(self._boot_ms(), lat, lon, alt, rel, *cm,
-                                                        _centidegrees(state.yaw))
+        return self._encoder.global_position_int_encode(self._boot_ms(), lat, lon, alt, rel, *cm, _centidegrees(yaw))
 
     def _local_position_ned(self):
-        state = self._dynamics.state()
-        return self._encoder.local_position_ned_encode(self._boot_ms(), *state.pos, *state.vel)
+        state, pos, _ = self._estimate()
+        return self._encoder.local_position_ned_encode(self._boot_ms(), *pos, *state.vel)
 
     def _attitude(self):
-        s = self._dynamics.state()
-        return self._encoder.attitude_encode(self._boot_ms(), s.roll, s.pitch, s.yaw, s.roll_rate, s.pitch_rate, 0.0)
+        s, _, (roll, pitch, yaw) = self._estimate()
+        return self._encoder.attitude_encode(self._boot_ms(), roll, pitch, yaw, s.roll_rate, s.pitch_rate, 0.0)
+
+    def _attitude_quaternion(self):
+        s, _, (roll, pitch, yaw) = self._estimate()
+        return self._encoder.attitude_quaternion_encode(self._boot_ms(), *quaternion(roll, pitch, yaw), s.roll_rate,
+                                                        s.pitch_rate, 0.0, [0.0, 0.0, 0.0, 0.0])
+
+    def _altitude(self):
+        """ALTITUDE: the estimate's altitude above home (local and relative) and AMSL; the floor is flat, so
+        the terrain is home's altitude and the bottom clearance the height."""
+        _, (_, _, d), _ = self._estimate()
+        amsl = self._config.home_alt_m - d
+        return self._encoder.altitude_encode(int((time.monotonic() - self._boot) * 1e6), amsl, amsl, -d, -d,
+                                             self._config.home_alt_m, -d)
+
+    def _estimator_status(self):
+        s = mavlink
+        flags = (s.ESTIMATOR_ATTITUDE | s.ESTIMATOR_VELOCITY_HORIZ | s.ESTIMATOR_VELOCITY_VERT
+                 | s.ESTIMATOR_POS_HORIZ_REL | s.ESTIMATOR_POS_VERT_ABS | s.ESTIMATOR_PRED_POS_HORIZ_REL)
+        if self._config.gps:
+            flags |= s.ESTIMATOR_POS_HORIZ_ABS | s.ESTIMATOR_PRED_POS_HORIZ_ABS
+        horizontal, vertical = self._estimator.accuracy()
+        return self._encoder.estimator_status_encode(int((time.monotonic() - self._boot) * 1e6), flags, 0.1, 0.1,
+                                                     0.1, 0.0, 0.0, 0.0, horizontal, vertical)
 
     def _home_position(self):
         return self._encoder.home_position_encode(*self._home_geo(), 0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0],
@@ -228,8 +307,8 @@ class Telemetry:
         return self._encoder.gps_global_origin_encode(*self._home_geo(), int(time.time() * 1e6))
 
     def _gps_raw_int(self):
-        state = self._dynamics.state()
-        lat, lon, alt, _ = self._geo_of(state.pos)
+        state, pos, _ = self._estimate()
+        lat, lon, alt, _ = self._geo_of(pos)
         speed = math.hypot(state.vel[0], state.vel[1])
         return self._encoder.gps_raw_int_encode(int(time.time() * 1e6), mavlink.GPS_FIX_TYPE_3D_FIX, lat, lon, alt,
                                                 80, 120, min(65534, round(speed * 100)), _centidegrees(state.yaw),
@@ -237,20 +316,31 @@ class Telemetry:
 
     def _vfr_hud(self):
         with self._lock:
-            state, armed = self._dynamics.state(), self._autopilot.armed
+            (state, pos, (_, _, yaw)), armed = self._estimate(), self._autopilot.armed
         vn, ve, vd = state.vel
-        return self._encoder.vfr_hud_encode(math.hypot(vn, ve), math.hypot(vn, ve),
-                                            round(math.degrees(state.yaw)) % 360, 50 if armed else 0,
-                                            self._config.home_alt_m - state.pos[2], -vd)
+        return self._encoder.vfr_hud_encode(math.hypot(vn, ve), math.hypot(vn, ve), round(math.degrees(yaw)) % 360,
+                                            50 if armed else 0, self._config.home_alt_m - pos[2], -vd)
 
     def _autopilot_version(self):
         s = mavlink
-        caps = (s.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | s.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-                | s.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED | s.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+        # as PX4 announces them, less what this vehicle lacks (FTP, fence and rally plans, attitude targets)
+        caps = (s.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT | s.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+                | s.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | s.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+                | s.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+                | s.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT | s.MAV_PROTOCOL_CAPABILITY_MAVLINK2
                 | s.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE)
         uid = 0x5541_5652_0000_0000 | self._config.system_id  # "UAVR" + system id: stable per vehicle
         return self._encoder.autopilot_version_encode(caps, PX4_VERSION, PX4_VERSION, 0, 0, [0] * 8, [0] * 8,
                                                       [0] * 8, 0, 0, uid)
+
+
+def quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    """(w, x, y, z) of the body's attitude (ZYX Euler angles, radians), as ATTITUDE_QUATERNION carries it."""
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
 
 
 def _centidegrees(yaw: float) -> int:

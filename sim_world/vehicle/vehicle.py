@@ -12,6 +12,7 @@ from .commands import Commands
 from .config import VehicleConfig
 from .datalink import Datalink
 from .dynamics import Dynamics, State
+from .estimator import Estimator
 from .journal import Journal
 from .link import Link
 from .mission import Mission
@@ -19,6 +20,7 @@ from .mission_protocol import MissionService
 from .modes import LandedState, Mode
 from .offboard import Offboard
 from .params import Params
+from .payload import Payload, Trigger
 from .telemetry import Telemetry
 
 
@@ -41,7 +43,9 @@ class Vehicle:
         self._params = Params(cfg, self._lock, self._journal, self._link)
         self._dynamics = Dynamics(self._lock, self._journal, ceiling=lambda: self._params.get("LNDMC_ALT_MAX"),
                                   wobble_deg=cfg.hover_wobble_deg, seed=cfg.seed)
-        self._offboard = Offboard(self._lock, self._journal, self._link, self._dynamics)
+        self._offboard = Offboard(cfg, self._lock, self._journal, self._link, self._dynamics)
+        self._estimator = Estimator(cfg, self._lock)
+        self._payload = Payload(self._lock, self._journal, announce=self._announce_trigger)
         self._battery = Battery(self._lock, self._journal, self._params)
         self._datalink = Datalink(self._lock)
         enc = self._link.encoder
@@ -50,9 +54,10 @@ class Vehicle:
                                 on_current=lambda seq: self._link.send(self._telemetry.mission_current()))
         self._missions = MissionService(self._lock, self._journal, self._link, self._mission)
         self._autopilot = Autopilot(self._lock, self._journal, self._dynamics, self._params, self._offboard,
-                                    self._battery, self._datalink, self._mission, cruise_speed_m_s=min(cfg.cruise_speed_m_s, cfg.max_speed_m_s))
+                                    self._battery, self._datalink, self._mission, cruise_speed_m_s=min(cfg.cruise_speed_m_s, cfg.max_speed_m_s),
+                                    estimator=self._estimator, payload=self._payload, gps=cfg.gps)
         self._telemetry = Telemetry(cfg, self._lock, self._journal, self._link, self._dynamics, self._autopilot,
-                                    self._battery, self._mission)
+                                    self._battery, self._mission, self._estimator)
         self._commands = Commands(cfg, self._link, self._journal, self._autopilot, self._telemetry, self._params,
                                   self._offboard, self._datalink, self._mission, self._missions)
 
@@ -77,6 +82,10 @@ class Vehicle:
             self._threads.append(thread)
         return self
 
+    def _announce_trigger(self, trigger: Trigger) -> None:
+        """A camera trigger, as PX4's camera_trigger announces it: CAMERA_TRIGGER on every link."""
+        self._link.send(self._link.encoder.camera_trigger_encode(int(trigger.time_s * 1e6), trigger.seq))
+
     def _tick_missions(self) -> None:
         """Drive the mission protocol's retries and timeouts (wall time, like the ground station's)."""
         while not self._stop.wait(0.05):
@@ -92,6 +101,10 @@ class Vehicle:
         self._journal.speaker = None
         self._link.close()
         self._journal.warn.flush()   # the warnings held back, said now rather than at exit
+
+    def land_now(self, why: str) -> None:
+        """Land where it is if in the air (a failsafe's landing, kept until disarmed)."""
+        self._autopilot.land_now(why)
 
     def __enter__(self) -> "Vehicle":
         return self.start()
@@ -129,6 +142,38 @@ class Vehicle:
     def bad_frames(self) -> int:
         """Datagrams or frames received that were not valid MAVLink, or that broke a handler."""
         return self._link.bad_frames
+
+    @property
+    def refused_strangers(self) -> int:
+        """Valid frames the flight link refused because they came from another process than its companion."""
+        return self._link.refused_strangers
+
+    @property
+    def companion(self) -> tuple[int, object] | None:
+        """(system id, address) of the system the flight link answers, once it has spoken."""
+        return self._link.companion
+
+    @property
+    def camera_triggers(self) -> list[Trigger]:
+        """Every camera trigger a mission's camera items made (time, position), oldest first."""
+        with self._lock:
+            return list(self._payload.triggers)
+
+    @property
+    def gimbal_deg(self) -> tuple[float, float]:
+        """(pitch, yaw) in degrees the mission last commanded the gimbal to (the camera itself is body-fixed)."""
+        with self._lock:
+            return self._payload.gimbal_deg
+
+    @property
+    def failsafe_kept(self) -> tuple[Mode, str] | None:
+        """The battery failsafe's RTL or LAND and its reason while it is kept (commands that would leave it are denied)."""
+        return self._autopilot.kept
+
+    @property
+    def refused_setpoints(self) -> int:
+        """Offboard setpoints refused as not flyable (each reason said once as STATUSTEXT)."""
+        return self._offboard.refused
 
     @property
     def refused_unsigned(self) -> int:
