@@ -157,16 +157,18 @@ class Site:
         from sim_world.world import World, WorldConfig
 
         self.mavlink_port = free_udp_port()
+        self.gcs_port = free_udp_port()   # the operator's link (the flight link answers the UAV only)
         self.shutters: list[Shutter] = []
         self.images: list[dict[str, Any]] = []      # the header of every image the world sent
         self._lock = threading.Lock()
         self.world = World(WorldConfig(fleet=hub.fleet, map=opts.map, robots=opts.robots, seed=opts.seed,
                                        connectivity=opts.connectivity, time_scale=opts.time_scale,
-                                       mavlink=f"udpout:127.0.0.1:{self.mavlink_port}", connect=[hub.endpoint]))
+                                       mavlink=f"udpout:127.0.0.1:{self.mavlink_port}",
+                                       gcs=f"udpin:127.0.0.1:{self.gcs_port}", connect=[hub.endpoint]))
         # Watched, not changed: when each shutter opens (how settled the floor is then), and what is sent.
         exposure, render = self.world.exposure, self.world._render_reply
         self.world.exposure = lambda: (self._shutter(), exposure())[1]
-        self.world._render_reply = lambda q, shot: render(_Tap(q, self._sent), shot)
+        self.world._render_reply = lambda q, shot, *rest: render(_Tap(q, self._sent), shot, *rest)
         try:
             self.world.start()
         except BaseException:
@@ -201,15 +203,14 @@ class Site:
         return self.world.vehicle_dict()
 
     def command_rtl(self) -> float | None:
-        """A ground station on the vehicle's own MAVLink socket commands Return To Launch, as an operator's
+        """A ground station on the vehicle's ground-station link commands Return To Launch, as an operator's
         QGroundControl or a failsafe would; returns when the vehicle switched (None: it did not)."""
         from pymavlink import mavutil
 
         vehicle = self.world.vehicle
-        if vehicle is None or vehicle.local_address is None:
+        if vehicle is None:
             return None
-        host, port = vehicle.local_address
-        gcs = mavutil.mavlink_connection(f"udpout:{host}:{port}", source_system=250)
+        gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{self.gcs_port}", source_system=250)
         try:
             gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0, 0, 0, 0, 0, 0)
             deadline = time.monotonic() + RTL_SEEN_S

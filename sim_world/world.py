@@ -39,10 +39,15 @@ from scenarios.maps import place, resolve_map
 
 from .camera.model import DEFAULT_CAMERA_PRESET, camera_model_from, camera_options
 from .moves import MoveJudge
+from .vehicle_cli import DEFAULT_URL as DEFAULT_VEHICLE_URL
+from .vehicle_cli import add_ground_station_arguments, parse_home
 
 # PX4 SITL's default home: a field near Zurich. The grid's top-left corner is there.
 HOME = (47.397742, 8.545594, 488.0)
 MOVE_BATCH_TIMEOUT_S = 2.0
+# Following an autopilot, an image waits at most this long for the telemetry after its shutter (at
+# 50 Hz the next sample is 20 ms away); then the last sample is carried on at its velocity.
+FOLLOW_WAIT_S = 0.25
 
 
 @dataclass
@@ -61,6 +66,10 @@ class WorldConfig:
     gcs: str | None = None            # a second MAVLink link, for a ground station
     mavlink_key: str | None = None    # a file with the MAVLink 2 signing key of the gcs link
     mavlink_bind: str = "127.0.0.1"   # the address the vehicle's sockets are bound to
+    # Follow an autopilot the world does not fly (sim_world/pose_follower.py): its pose link, and where
+    # its local origin lies on the floor (None: its first home is the floor's corner).
+    autopilot_pose: str | None = None
+    autopilot_origin: tuple[float, float, float] | None = None
     time_scale: float = 1.0
     camera: dict[str, Any] = field(default_factory=dict)  # sim_world.camera.CameraModel fields
     camera_height_m: float = 0.3      # lens above the floor when the vehicle sits on it
@@ -71,6 +80,8 @@ class WorldConfig:
     slip: float = 0.0                 # probability that a move ends elsewhere, unknown to the robot
     skids: dict[int, int] = field(default_factory=dict)   # robot -> tick from which all its moves end elsewhere
     end_timeout_s: float = 120.0      # after MissionEnd, the longest wait for the UAV to leave
+    camera_mavlink: str | None = None  # the camera's own MAVLink link (camera/mavlink_camera.py); None: none
+    camera_video: str | None = None    # udp://HOST:PORT: its H.264 RTP stream (camera/stream.py); None: none
 
     def check(self) -> None:
         Keys(self.fleet)
@@ -85,7 +96,13 @@ class WorldConfig:
             raise UavRobotsError(f"time scale must be positive, got {self.time_scale}")
         if self.connect and self.listen:
             raise UavRobotsError("give --connect or --listen, not both")
-        if self.mavlink:
+        if self.autopilot_pose:
+            from .pose_follower import check_pose_url
+            if self.gcs or self.mavlink_key:   # its `mavlink` is not opened
+                raise UavRobotsError("with --autopilot-pose the world runs no vehicle: give --gcs and --mavlink-key "
+                                     "to the autopilot (`uav-robots vehicle`)")
+            check_pose_url(self.autopilot_pose, self.mavlink_bind)
+        elif self.mavlink:
             vehicle_config(self)
         elif self.gcs or self.mavlink_key:
             raise UavRobotsError("--gcs and --mavlink-key need a vehicle (--mavlink is none)")
@@ -105,6 +122,12 @@ def vehicle_config(cfg: WorldConfig, hover_wobble_deg: float = 0.0) -> Any:
                             hover_wobble_deg=hover_wobble_deg, seed=cfg.seed)
     except MissionError as exc:
         raise UavRobotsError(str(exc)) from None
+
+
+def fence_reach_m(shape: tuple[int, ...], cell_size_m: float) -> float:
+    """The geofence radius that keeps a floor of `shape` cells inside: its farthest corner, with a margin."""
+    h, w = shape[:2]
+    return 1.2 * math.hypot(h, w) * cell_size_m + 10.0
 
 
 @dataclass(frozen=True)
@@ -309,7 +332,9 @@ class World(Lifecycle):
         self.transport = transport
         self._own_transport = transport is None
         self.vehicle: Any = None
+        self.follower: Any = None   # sim_world.pose_follower.PoseFollower, with --autopilot-pose
         self.camera_model: Any = None
+        self.mavlink_camera: Any = None   # camera.mavlink_camera.MavlinkCamera, with --camera-mavlink/--camera-video
         self.warn = Throttled("world")
         self.mission_ended: float | None = None
         self.uav_seen = False
@@ -333,12 +358,14 @@ class World(Lifecycle):
         # The lens and noise tables take seconds at 12 MP: built on the camera's thread while the
         # vehicle takes off, so the first image is not late.
         self._camera_pool.submit(prepare, self.camera_model)
-        if cfg.mavlink:
+        if cfg.autopilot_pose:
+            from .pose_follower import PoseFollower
+            self.follower = PoseFollower(cfg.autopilot_pose, cfg.autopilot_origin, cfg.mavlink_bind, self.warn).start()
+        elif cfg.mavlink:
             from .vehicle import Vehicle
             self.vehicle = Vehicle(vehicle_config(cfg, hover_wobble_deg=self.camera_model.wobble_deg))
             # The geofence must not cut off part of a large floor: the farthest corner, with a margin.
-            h, w = self.truth.free.shape
-            reach = 1.2 * math.hypot(h, w) * cfg.cell_size_m + 10.0
+            reach = fence_reach_m(self.truth.free.shape, cfg.cell_size_m)
             if reach > self.vehicle.param("GF_MAX_HOR_DIST"):
                 self.vehicle.set_param("GF_MAX_HOR_DIST", reach)
             self.vehicle.start()
@@ -364,6 +391,7 @@ class World(Lifecycle):
             t.watch_alive(k.alive_uav, self._on_uav),
             t.watch_alive(k.alive_robots, self._on_robot_alive),
         )
+        self._start_camera_component()
         self.keep(t.announce(k.alive_world))
 
     def run(self, poll_s: float = 0.1) -> str:
@@ -384,7 +412,12 @@ class World(Lifecycle):
         self.warn.flush()   # the warnings held back, said now rather than at exit
         if self.desk is not None:
             self.desk.close()
+        if self.mavlink_camera is not None:
+            self.mavlink_camera.close()
         self._camera_pool.shutdown(wait=True, cancel_futures=True)
+        if self.follower is not None:
+            self.follower.close()
+            self.follower = None
         if self.vehicle is not None:
             try:
                 self.vehicle.stop()
@@ -405,7 +438,9 @@ class World(Lifecycle):
         h, w = self.truth.free.shape
         where = getattr(self.transport, "where", "zenoh")
         return (f"fleet {self.cfg.fleet}, map {self.truth.name} {w}x{h}, {len(self.truth.starts)} robots, "
-                f"zenoh {where}, mavlink {self.cfg.mavlink or 'off'}"
+                f"zenoh {where}, "
+                + (f"following the autopilot on {self.cfg.autopilot_pose}" if self.cfg.autopilot_pose
+                   else f"mavlink {self.cfg.mavlink or 'off'}")
                 + (f", ground station {self.cfg.gcs}" + (" (signed)" if self.cfg.mavlink_key else "")
                    if self.cfg.gcs else ""))
 
@@ -542,10 +577,13 @@ class World(Lifecycle):
                 "goals": [list(g) for g in t.goals],
                 "connectivity": self.cfg.connectivity, "cell_size_m": self.cfg.cell_size_m,
                 "slips": list(self.judge.skids), "safety_stops": self.judge.safety_stops,
-                "vehicle": self.vehicle_dict()}
+                "vehicle": self.vehicle_dict(),
+                "camera_component": self.mavlink_camera.record() if self.mavlink_camera is not None else None}
 
     def vehicle_dict(self) -> dict[str, Any] | None:
         """What the simulated autopilot itself saw: independent of what the UAV agent reports."""
+        if self.follower is not None:
+            return self.follower.truth()
         v = self.vehicle
         if v is None:
             return None
@@ -570,16 +608,19 @@ class World(Lifecycle):
         try:
             from .camera import clip_roi
 
+            shutter = time.monotonic()
             shot = self.exposure()
             roi = clip_roi(shot[2], request.roi_x, request.roi_y, request.roi_width, request.roi_height)
-            self._camera_pool.submit(self._render_reply, q, (*shot, roi))
+            self._camera_pool.submit(self._render_reply, q, (*shot, roi), shutter)
         except RuntimeError:  # shutting down
             q.finish()
 
-    def _render_reply(self, q: IncomingQuery, shot: tuple) -> None:
+    def _render_reply(self, q: IncomingQuery, shot: tuple, shutter: float | None = None) -> None:
         from .camera import capture_frame
 
         try:
+            if shutter is not None:
+                shot = self.at_shutter(shot, shutter)
             q.reply(encode(capture_frame(*shot)))
         except UavRobotsError as exc:
             self.warn(f"camera: {exc}")
@@ -588,9 +629,44 @@ class World(Lifecycle):
             self.warn(f"camera failed: {type(exc).__name__}: {exc}")
             q.finish()
 
-    def camera_view(self):
-        """The camera's true pose and motion in the grid's NED frame: the vehicle's, lifted by the mount height."""
+    def _start_camera_component(self) -> None:
+        """The camera as a real drone's: a MAVLink camera component, its files over HTTP, its video."""
+        c = self.cfg
+        if not (c.camera_mavlink or c.camera_video):
+            return
+        from .camera import capture_frame
+        from .camera.mavlink_camera import CameraLink, MavlinkCamera
+        from .camera.stream import VideoStream, render_view, video_config
+
+        video = (VideoStream(video_config(c.camera_video), self.camera_model, render_view(self.exposure), c.mavlink_bind)
+                 if c.camera_video else None)
+        self.mavlink_camera = MavlinkCamera(CameraLink(c.camera_mavlink, (c.home_lat, c.home_lon, c.home_alt_m),
+                                                       bind_host=c.mavlink_bind),
+                                            self.camera_model, self.exposure, lambda shot: capture_frame(*shot),
+                                            self._camera_pool.submit, video)
+        self.mavlink_camera.start()
+        print(f"world: {self.mavlink_camera.describe()}", flush=True)
+
+    def at_shutter(self, shot: tuple, shutter: float) -> tuple:
+        """An exposure (`exposure()`'s) seen from the followed autopilot's pose at `shutter` (time.monotonic()
+        when it opened), interpolated in its telemetry once the samples after it came (waited for here,
+        off the transport's thread); a world that flies its own vehicle read its pose at the shutter."""
+        if self.follower is None:
+            return shot
+        view = self.camera_view(shutter, wait_s=FOLLOW_WAIT_S)
+        if view is None:
+            raise UavRobotsError(f"no pose from the autopilot on {self.cfg.autopilot_pose} yet")
+        return (shot[0], view, *shot[2:])
+
+    def camera_view(self, at: float | None = None, wait_s: float = 0.0):
+        """The camera's true pose and motion in the grid's NED frame: the vehicle's, lifted by the mount height.
+        Following an autopilot: its pose at the instant `at` (now), None before it sent one."""
         from .camera import VehicleView
+        if self.follower is not None:
+            p = self.follower.pose_at(time.monotonic() if at is None else at, wait_s)
+            if p is None:
+                return None
+            return VehicleView(p.north_m, p.east_m, p.down_m - self.cfg.camera_height_m, *p[3:])
         if self.vehicle is None:
             # No vehicle (tests of the services): a fixed camera over the centre that sees the whole floor.
             h, w = self.truth.free.shape
@@ -609,7 +685,7 @@ class World(Lifecycle):
     def exposure(self) -> tuple:
         """What one image shows, fixed at the shutter: the scene, the camera's true view and the
         clock; capture_frame's arguments."""
-        from .camera import CameraModel, PoseEstimator, Scene
+        from .camera import CameraModel, PoseEstimator, Scene, VehicleView
 
         if self.camera_model is None:   # never started (tests of capture alone)
             self.camera_model = CameraModel()
@@ -621,7 +697,10 @@ class World(Lifecycle):
         scene = Scene(self.truth.free, robots, list(self.truth.goals), self.landmarks,
                       goal_pads=bool(self.camera_model.goal_pads))
         view = self.camera_view()
-        t = self.vehicle.sim_time_s if self.vehicle is not None else time.monotonic() - self._t0
+        if view is None:   # no pose from the followed autopilot yet: the lens on the floor at its corner
+            view = VehicleView(0.0, 0.0, -self.cfg.camera_height_m)
+        scale = self.cfg.time_scale if self.follower is not None else 1.0   # simulated seconds, as the vehicle's
+        t = self.vehicle.sim_time_s if self.vehicle is not None else (time.monotonic() - self._t0) * scale
         seed = self._next_seq()
         return scene, view, self.camera_model, self.cfg.cell_size_m, self.estimator, t, self._next_seq(), seed
 
@@ -671,9 +750,18 @@ def add_world_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scen", default=None, metavar="FILE", help="take starts and goals from a MovingAI .scen")
     p.add_argument("--fleet", default=DEFAULT_FLEET, help=f"fleet name: keys live under uavr/<fleet> (default {DEFAULT_FLEET})")
     add_session_arguments(p)
-    p.add_argument("--mavlink", default="udpout:127.0.0.1:14540", metavar="URL",
-                   help="the vehicle's MAVLink link (pymavlink URL); 'none' runs without a vehicle")
+    p.add_argument("--mavlink", default=None, metavar="URL",
+                   help=f"the vehicle's MAVLink link (pymavlink URL; default {DEFAULT_VEHICLE_URL}); 'none' runs "
+                        "without a vehicle")
     add_ground_station_arguments(p)
+    p.add_argument("--autopilot-pose", default=None, metavar="URL",
+                   help="fly no vehicle: follow the autopilot whose telemetry comes on this link (its ground "
+                        "station's port: `uav-robots vehicle --pose-link`, PX4 or ArduPilot SITL, a real drone) "
+                        "and render the camera from its pose, e.g. udpin:127.0.0.1:14550")
+    p.add_argument("--autopilot-origin", default=None, metavar="home|N,E,D",
+                   help="with --autopilot-pose, where the autopilot's local frame lies: 'home' (default: its "
+                        "first home is the floor's top-left corner) or its local origin's N,E,D on the floor "
+                        "(metres; an indoor autopilot without GPS)")
     p.add_argument("--time-scale", type=float, default=1.0, metavar="X", help="simulated seconds per second")
     p.add_argument("--cell-size", type=float, default=1.0, metavar="M", help="grid cell size in metres")
     p.add_argument("--connectivity", type=int, choices=(4, 8), default=4)
@@ -683,24 +771,18 @@ def add_world_arguments(p: argparse.ArgumentParser) -> None:
                         f"{DEFAULT_CAMERA_PRESET}) then keys over it, on the 12 MP drone camera (4000x3000, "
                         "90 deg), e.g. realistic,blur_sigma=2 or width=1280,height=960,noise_std=2 "
                         "(every key: README, 'The camera')")
+    p.add_argument("--camera-mavlink", default=None, metavar="URL",
+                   help="also a MAVLink camera component (Camera Protocol v2) on a link of its own, e.g. "
+                        "udpout:127.0.0.1:14560; its images served over HTTP on --mavlink-bind")
+    p.add_argument("--camera-video", default=None, metavar="udp://HOST:PORT[?fps=F&width=W]",
+                   help="stream the camera's video as H.264 over RTP to HOST:PORT (QGroundControl: 5600; "
+                        "default 5 fps, 1280 px wide); off by default (it costs the world CPU)")
     p.add_argument("--fault", action="append", default=[], metavar="slip:P|skid:ROBOT@TICK",
                    help="slip:P: each move ends, with probability P, in another free neighbour cell or where "
                         "it started, and the robot is told it arrived (only a camera sees the truth); "
                         "skid:ROBOT@TICK: from tick TICK every move of that robot does so (a broken drive)")
     p.add_argument("--move-timeout", type=float, default=MOVE_BATCH_TIMEOUT_S, metavar="S",
                    help="how long a tick's moves are collected before the missing robots are made to stay")
-
-
-def add_ground_station_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--gcs", default=None, metavar="URL",
-                   help="a second MAVLink link to the vehicle for a ground station, e.g. udpout:127.0.0.1:14550 "
-                        "(QGroundControl's port) or udpin:127.0.0.1:14551")
-    p.add_argument("--mavlink-key", default=None, metavar="FILE",
-                   help="sign the --gcs link with this MAVLink 2 key (32 raw bytes or 64 hex digits); "
-                        "unsigned frames are refused there")
-    p.add_argument("--mavlink-bind", default="127.0.0.1", metavar="HOST",
-                   help="address the vehicle's MAVLink sockets are bound to (default 127.0.0.1: only this "
-                        "machine can reach it; 0.0.0.0 opens it to the network)")
 
 
 WORLD_FAULTS = ("slip:", "skid:")   # the --fault kinds the world injects; the others are the robots'
@@ -741,16 +823,21 @@ def slip_probability(faults: list[str]) -> float:
     return world_faults(faults).slip
 
 
+def _none(url: str | None) -> str | None:
+    return None if url is None or url.lower() in ("none", "off", "") else url
+
+
 def config_from_args(args: argparse.Namespace) -> WorldConfig:
-    home = HOME
-    if args.home:
-        try:
-            home = tuple(float(v) for v in args.home.split(","))  # type: ignore[assignment]
-        except ValueError:
-            raise UavRobotsError(f"--home {args.home!r} is not LAT,LON,ALT") from None
-        if len(home) != 3:
-            raise UavRobotsError(f"--home {args.home!r} is not LAT,LON,ALT")
-    mav = None if args.mavlink.lower() in ("none", "off", "") else args.mavlink
+    from .pose_follower import parse_origin
+
+    home = parse_home(args.home) or HOME
+    follow = _none(args.autopilot_pose)
+    mav = _none(args.mavlink if args.mavlink is not None else (None if follow else DEFAULT_VEHICLE_URL))
+    if follow and mav:
+        raise UavRobotsError("with --autopilot-pose the world runs no vehicle: give --mavlink to the autopilot "
+                             "(`uav-robots vehicle`)")
+    if args.autopilot_origin is not None and not follow:
+        raise UavRobotsError("--autopilot-origin places a followed autopilot: give --autopilot-pose URL too")
     camera_model_from(args.camera, DRONE_CAMERA)   # every value checked before anything starts
     faults = world_faults(args.fault)
     cfg = WorldConfig(fleet=args.fleet, map=args.map, robots=args.robots, seed=args.seed, scen=args.scen,
@@ -759,7 +846,13 @@ def config_from_args(args: argparse.Namespace) -> WorldConfig:
                       camera={**DRONE_CAMERA, **camera_options(args.camera)}, connect=args.connect, listen=args.listen,
                       zenoh_config=args.zenoh_config, move_batch_timeout_s=args.move_timeout,
                       slip=faults.slip, skids=faults.skids, gcs=args.gcs, mavlink_key=args.mavlink_key,
-                      mavlink_bind=args.mavlink_bind)
+                      mavlink_bind=args.mavlink_bind, camera_mavlink=_none(args.camera_mavlink),
+                      camera_video=_none(args.camera_video), autopilot_pose=follow,
+                      autopilot_origin=parse_origin(args.autopilot_origin))
+    if cfg.camera_video:
+        from .camera.stream import require_pyav, video_config
+        video_config(cfg.camera_video)
+        require_pyav()
     cfg.check()
     return cfg
 

@@ -212,33 +212,31 @@ def test_crash_and_stall_on_the_papers_setting(tmp_path):
     _check_truth(report, {7, 12})
 
 
-def _vehicle_port(run: Run) -> int:
+def _vehicle_ports(run: Run) -> list[int]:
+    """The vehicle process's UDP ports, its flight link's first (opened first: the lower descriptor)."""
     for child in psutil.Process(run.proc.pid).children(recursive=True):
-        if "sim_world" in " ".join(child.cmdline()):
-            ports = [c.laddr.port for c in child.net_connections(kind="udp")]
-            assert len(ports) == 1, ports
-            return ports[0]
-    raise AssertionError("no world process")
+        if "sim_world.vehicle" in " ".join(child.cmdline()):
+            conns = sorted(child.net_connections(kind="udp"), key=lambda c: c.fd)
+            assert len(conns) == 2, conns   # the UAV's flight link and the world's pose link
+            return [c.laddr.port for c in conns]
+    raise AssertionError("no vehicle process")
 
 
 @pytest.mark.parametrize("command, words", [
     ("disarm", "disarmed by someone else"),
     ("land", "LAND mode"),
-    ("rtl on the --gcs link", "RETURN_TO_LAUNCH mode"),
+    ("rtl", "RETURN_TO_LAUNCH mode"),
 ])
-def test_a_second_ground_station_takes_the_vehicle(tmp_path, udp_port, command, words):
+def test_a_ground_station_takes_the_vehicle(tmp_path, udp_port, command, words):
+    """The operator's own link (--gcs, QGroundControl's) commands over the mission: the UAV notices, ends
+    the mission as aborted naming what happened, and leaves the vehicle to its autopilot."""
     from pymavlink import mavutil
 
-    gcs_port = udp_port if command.endswith("--gcs link") else None  # the operator's own link, like QGroundControl's
-    run = Run(tmp_path / "out", "--robots", "6", "--tick-rate", "4",
-              *(["--gcs", f"udpout:127.0.0.1:{gcs_port}"] if gcs_port else []))
-    if gcs_port:
-        gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{gcs_port}", source_system=250)
-        assert gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=30) is not None  # learns the vehicle
-    run.wait_for_tick(2)
-    if not gcs_port:
-        gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{_vehicle_port(run)}", source_system=250)
+    run = Run(tmp_path / "out", "--robots", "6", "--tick-rate", "4", "--gcs", f"udpout:127.0.0.1:{udp_port}")
+    gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{udp_port}", source_system=250)
     try:
+        assert gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=30) is not None  # learns the vehicle
+        run.wait_for_tick(2)
         m = gcs.mav
         if command == "disarm":   # forced: a multicopter in the air refuses a plain disarm
             m.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 21196, 0, 0, 0, 0, 0)
@@ -254,6 +252,30 @@ def test_a_second_ground_station_takes_the_vehicle(tmp_path, udp_port, command, 
     assert words in report["reason"]
     assert any(e["kind"] == "vehicle" and words in e["what"] for e in report["events"])
     assert not any("COMPLETED" in line for line in run.lines)
+    if command != "disarm":   # the autopilot's own LAND or RTL brings it down; the UAV commands nothing over it
+        assert report["uav"]["left_to_autopilot"] in ("LAND", "RETURN_TO_LAUNCH"), report["uav"]
+
+
+def test_a_strangers_disarm_on_the_flight_link_is_refused_and_the_mission_goes_on(tmp_path):
+    """The issue's crash: one unsigned force-disarm datagram from another local process, on the link the
+    UAV flies by. That link answers its companion only: the datagram is refused, counted and said."""
+    from pymavlink import mavutil
+
+    run = Run(tmp_path / "out", "--robots", "6", "--tick-rate", "4")
+    run.wait_for_tick(2)
+    strangers = [mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=250 + i)
+                 for i, port in enumerate(_vehicle_ports(run))]   # and on the world's pose link
+    try:
+        for stranger in strangers:
+            stranger.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 21196,
+                                           0, 0, 0, 0, 0)
+        code, report = run.finish()
+    finally:
+        for stranger in strangers:
+            stranger.close()
+    assert code == 0 and report["completed"] is True, "".join(run.lines)[-3000:]
+    said = (tmp_path / "out" / "logs" / "vehicle.log").read_text()
+    assert "Flight link: refused system 250" in said and "Pose link: refused system 251" in said, said[-2000:]
 
 
 def test_slips_are_seen_and_repaired(tmp_path):

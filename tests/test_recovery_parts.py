@@ -98,3 +98,40 @@ def test_a_mode_the_mission_never_commands_is_a_vehicle_fault():
             assert f"switched to {theirs} mode" in watch._check()
     finally:
         watch.close()
+
+
+def test_the_watch_knows_the_autopilot_and_the_climb():
+    from types import SimpleNamespace
+
+    from uav_agent.watch import VehicleWatch
+
+    flight = SimpleNamespace(armed=True, in_air=True, flight_mode="OFFBOARD", autopilot="ARDUPILOT",
+                             battery_pct=9.0, status_text="Critical battery level!")
+    watch = VehicleWatch(flight, lambda why: None, period_s=60)
+    try:
+        # MAVSDK names ArduCopter's GUIDED, the mode a companion flies it in, OFFBOARD
+        assert watch._taken() == (None, None)
+        flight.autopilot = "PX4"
+        assert watch._taken()[0] == "OFFBOARD"
+        flight.flight_mode = "RETURN_TO_LAUNCH"
+        taken, why = watch._taken()
+        assert taken == "RETURN_TO_LAUNCH"
+        assert why.endswith("(battery 9 %; the autopilot says 'Critical battery level!')"), why
+        # taking off: on the ground is no fault until the vehicle has been in the air
+        flight.flight_mode, flight.in_air = "TAKEOFF", False
+        watch.expect_airborne(True, taking_off=True)
+        assert watch._taken() == (None, None)
+        flight.in_air = True
+        assert watch._taken() == (None, None)
+        flight.in_air = False
+        assert watch._taken()[0] == "on the ground"
+    finally:
+        watch.close()
+
+
+def test_an_abort_lands_off_the_floor_beyond_its_nearest_corner():
+    from uav_agent.landing import MIN_ALT_M, OFF_FLOOR_CELLS as off, abort_spot
+
+    assert abort_spot(-15.0, 20.0, 12.0, 24, 18, 1.0) == (-18 - off, 24 + off, 12.0)   # the south-east corner
+    assert abort_spot(-1.0, 1.0, 1.0, 24, 18, 1.0) == (off, -off, MIN_ALT_M)          # north-west, high enough
+    assert abort_spot(-100.0, 0.0, 50.0, 450, 450, 2.0) == (2 * off, -2 * off, 50.0)  # cells of 2 m

@@ -90,7 +90,7 @@ def _logs(out: Path) -> set[str]:
     return {p.name for p in (out / "logs").glob("*.log") if p.stat().st_size > 0}
 
 
-EVERY_LOG = {"uav.log", "world.log", "robots-0-0.log", "robots-1-1.log", "robots-2-2.log", "robots-3-3.log"}
+EVERY_LOG = {"uav.log", "world.log", "vehicle.log", "robots-0-0.log", "robots-1-1.log", "robots-2-2.log", "robots-3-3.log"}
 
 
 @pytest.mark.parametrize("how, code", [("kill-world", 1), ("kill-uav", 1), ("sigterm", 143), ("sigint", 130)])
@@ -119,6 +119,9 @@ def test_every_stop_mid_execution_leaves_a_report_and_every_log(tmp_path, how, c
         assert report["written_by"] == "launcher" and report["outcome"] == "aborted"
         assert report["reason"].startswith("the UAV exited with code -9 without a report"), report["reason"]
         assert "the launcher wrote" in run.err
+        # the vehicle, a process of its own, is left in the air: told to stop, it lands first
+        said = (tmp_path / "logs" / "vehicle.log").read_text()
+        assert "landing first" in said and "vehicle: stopped; armed False, ON_GROUND" in said, said[-1500:]
     if how == "kill-world":
         assert report["stopped_by"] == "the world process exited with code -9"
         # the UAV noticed the world's token vanish before the launcher's grace ran out: its own words

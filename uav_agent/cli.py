@@ -59,7 +59,34 @@ def add_uav_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tick-rate", type=float, default=0.0, metavar="HZ",
                    help="at most this many ticks per second, as robots that need time to cross a cell "
                         "(default 0: as fast as the fleet reports)")
+    add_camera_source_arguments(p)
     add_planning_arguments(p)
+
+
+def add_camera_source_arguments(p: argparse.ArgumentParser) -> None:
+    from .camera_source import DEFAULT_CAMERA_MAVLINK, KINDS
+
+    p.add_argument("--camera-source", default="zenoh", metavar="|".join(KINDS),
+                   help="where the images come from: zenoh (the world's world/camera query, default), mavlink (the "
+                        "MAVLink camera protocol: a capture command, CAMERA_IMAGE_CAPTURED, the file over HTTP) or "
+                        "video (an H.264 RTP stream, the pose from the autopilot's telemetry)")
+    p.add_argument("--camera-mavlink", default=DEFAULT_CAMERA_MAVLINK, metavar="URL",
+                   help=f"the camera component's MAVLink link (pymavlink URL; default {DEFAULT_CAMERA_MAVLINK})")
+    p.add_argument("--camera-video", default=None, metavar="URL",
+                   help="the video stream: udp://HOST:PORT (RTP H.264), an .sdp file or its URL (default: the "
+                        "stream the camera component announces)")
+    p.add_argument("--camera-calibration", default=None, metavar="FILE|URL",
+                   help="the camera's calibration JSON (width, height, fx, fy, cx, cy, k1, k2, p1, p2, k3; default: "
+                        "the calibration.json beside its definition file, else the pinhole it states)")
+
+
+def camera_source_config(a: argparse.Namespace):
+    """The --camera-* options, checked (one line for bad input)."""
+    from .camera_source import CameraSourceConfig
+
+    cfg = CameraSourceConfig(a.camera_source, a.camera_mavlink, a.camera_video, a.camera_calibration)
+    cfg.check()
+    return cfg
 
 
 def uav_command(a: argparse.Namespace) -> int:
@@ -77,7 +104,8 @@ def uav_command(a: argparse.Namespace) -> int:
                         time_limit_s=a.time_limit, fallback=not a.no_fallback, seed=a.seed,
                         out=Path(a.out) if a.out else None, tick_timeout_s=a.tick_timeout,
                         tick_rate_hz=a.tick_rate,
-                        monitor_every=a.monitor_every, observers=max(0, a.observers))
+                        monitor_every=a.monitor_every, observers=max(0, a.observers),
+                        camera=camera_source_config(a))
     report = Mission(cfg, Progress(enabled=not a.quiet)).run()
     if a.summary == "text":
         print(summary(report, cfg.out), flush=True)

@@ -29,6 +29,8 @@ class FleetLink:
         self.lost: set[int] = set()
         self.world_alive = False
         self.world_seen = False
+        # Why every wait must end now (the vehicle is not the mission's any more), or None.
+        self.interrupt: Callable[[], str | None] = lambda: None
         self.observers: set[str] = set()        # recorders and views that said they listen
         self.acks: dict[int, PlanAck] = {}
         self.last_tick: dict[int, int] = {}
@@ -193,7 +195,7 @@ class FleetLink:
         last = progress() if progress is not None else None
         with self.cv:
             while not ready():
-                if abort is not None and (why := abort()):
+                if (why := self.interrupt()) or (abort is not None and (why := abort())):
                     raise MissionError(why)
                 if progress is not None and (now := progress()) != last:
                     last = now

@@ -11,6 +11,9 @@ Frame: local NED with its origin at the vehicle's home position as read once at
 connect (for the simulated vehicle, the warehouse grid's top-left corner), converted
 with protocol/geo.py exactly as the vehicle does. The origin is not updated if the
 autopilot later moves its home (PX4 does on arming): the mission's frame must stay put.
+An autopilot without a global position (indoor: no GPS, no home) is flown in its own
+local frame instead (LOCAL_POSITION_NED, offboard position setpoints): its origin, where
+its estimator started, is then the floor's corner.
 """
 from __future__ import annotations
 
@@ -23,7 +26,8 @@ from typing import Callable
 from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk
 from mavsdk.logging import LogLevel, log_subscribe
 from mavsdk.plugins.action import Action, ActionError, ActionResult
-from mavsdk.plugins.telemetry import LandedState, Telemetry
+from mavsdk.plugins.offboard import Offboard, OffboardError, PositionNedYaw
+from mavsdk.plugins.telemetry import FixType, LandedState, Telemetry
 
 from protocol.errors import MissionError
 from protocol.geo import check_home, geo_to_ned, ned_to_geo
@@ -32,6 +36,10 @@ from protocol.log import Throttled
 DEFAULT_URL = "udpin://0.0.0.0:14540"
 POLL_S = 0.02
 SETTLED_M_S = 0.5  # a goto has arrived once the vehicle is this slow near its target
+# An autopilot that has a local position but has sent no home this long after it is indoor (PX4 on
+# vision or optical flow: no GPS, no home): the mission flies its local frame, in offboard.
+NO_HOME_S = 3.0
+OFFBOARD_START_S = 3.0   # how long the switch to offboard may take once setpoints stream
 
 _log = logging.getLogger("uav_agent.flight")
 _log_installed = threading.Lock()
@@ -71,6 +79,11 @@ class Flight:
         self._action: Action | None = None
         self._telemetry: Telemetry | None = None
         self._home: tuple[float, float, float] | None = None
+        self._offboard: Offboard | None = None   # the local frame's setpoints (no home)
+        # Why the vehicle is no longer the mission's (a failsafe's RTL or LAND, a pilot's mode, a
+        # disarm), or None: checked before every command and in every wait, so the agent never
+        # commands over the autopilot's own decision and notices it within a poll in any phase.
+        self.guard: Callable[[], str | None] = lambda: None
 
     # --- lifecycle ---------------------------------------------------------------------
 
@@ -112,9 +125,25 @@ class Flight:
             return _finite(home.latitude_deg, home.longitude_deg, home.absolute_altitude_m,
                            pos.latitude_deg, pos.longitude_deg, pos.absolute_altitude_m)
 
+        local_since: list[float] = []
+
+        def indoor():
+            """A local position, no GPS at all (an outdoor drone still waiting for its fix says NO_FIX) and no
+            home for NO_HOME_S: nothing global will come."""
+            if not _finite(*self._local()) or self._telemetry.gps_info().fix_type != FixType.NO_GPS:
+                return False
+            local_since[:1] = local_since[:1] or [time.monotonic()]
+            return time.monotonic() - local_since[0] >= NO_HOME_S
+
         try:
-            self._wait(home_and_position, deadline,
-                       lambda: f"autopilot at {self.url} sent no home position and position within {timeout_s:g} s")
+            self._wait(lambda: home_and_position() or indoor(), deadline,
+                       lambda: f"autopilot at {self.url} sent no home position and position (nor a local position) "
+                               f"within {timeout_s:g} s")
+            if not home_and_position():
+                self._offboard = Offboard(system)
+                _log.info("connected to autopilot %d at %s, no home: flying its local frame (offboard)",
+                          system.get_system_id(), self.url)
+                return self
             home = self._telemetry.home()
             check_home(home.latitude_deg, home.longitude_deg)
         except MissionError:
@@ -124,6 +153,16 @@ class Flight:
         _log.info("connected to autopilot %d at %s, home %.7f %.7f %.1f m", system.get_system_id(), self.url,
                   *self._home)
         return self
+
+    @property
+    def local_frame(self) -> bool:
+        """Flying the autopilot's local frame (no home: indoor), in offboard."""
+        return self._offboard is not None
+
+    @property
+    def own_modes(self) -> set[str]:
+        """The modes the mission itself puts the vehicle in beyond HOLD, TAKEOFF and LAND."""
+        return {"OFFBOARD"} if self.local_frame else set()
 
     def stream(self, hz: float) -> list[str]:
         """Ask the autopilot for attitude, position and velocity `hz` times a second (MAVSDK's
@@ -143,7 +182,7 @@ class Flight:
     def close(self) -> None:
         """Release MAVSDK (sockets, threads). Idempotent; `connect()` again to reuse the Flight."""
         mavsdk, self._mavsdk = self._mavsdk, None
-        self._action = self._telemetry = self._system = None
+        self._action = self._telemetry = self._system = self._offboard = None
         if mavsdk is not None:
             mavsdk.destroy()
         config, self._config = self._config, None
@@ -223,10 +262,39 @@ class Flight:
             raise MissionError(f"goto target ({north_m}, {east_m}, {alt_m} m, yaw {yaw_rad}, tolerance {tolerance_m})"
                                " must be finite numbers with a positive tolerance")
         action, _ = self._link()
+        what = f"go to N {north_m:.1f} E {east_m:.1f} at {alt_m:.1f} m"
+        if self._offboard is not None:
+            self._go_local(what, north_m, east_m, alt_m, yaw_deg)
+            return
         home_lat, home_lon, home_alt = self._home
         lat, lon = ned_to_geo(north_m, east_m, home_lat, home_lon)
-        self._act(f"go to N {north_m:.1f} E {east_m:.1f} at {alt_m:.1f} m",
-                  lambda: action.goto_location(lat, lon, home_alt + alt_m, yaw_deg))
+        self._act(what, lambda: action.goto_location(lat, lon, home_alt + alt_m, yaw_deg))
+
+    def _go_local(self, what: str, north_m: float, east_m: float, alt_m: float, yaw_deg: float) -> None:
+        """A position setpoint in the local frame; offboard is entered with the first (PX4 wants a setpoint
+        stream before it switches; MAVSDK keeps sending the last one at 20 Hz)."""
+        offboard = self._offboard
+        if not math.isfinite(yaw_deg):
+            yaw_deg = math.degrees(self.pose()[3])
+        self._check_guard()
+        try:
+            offboard.set_position_ned(PositionNedYaw(float(north_m), float(east_m), float(-alt_m), float(yaw_deg)))
+        except OffboardError as exc:
+            raise MissionError(f"vehicle refused to {what} in offboard: {exc.args[0].name}") from None
+        # The mode the autopilot reports, not MAVSDK's own flag (it says active after a refused start): after a
+        # take-off or a hold the vehicle is out of offboard again. PX4 switches only once the setpoints stream.
+        deadline = time.monotonic() + OFFBOARD_START_S
+        while self.flight_mode != "OFFBOARD":
+            self._check_guard()
+            try:
+                offboard.start()
+            except OffboardError as exc:
+                if time.monotonic() >= deadline:
+                    raise MissionError(f"vehicle refused to {what} in offboard: {exc.args[0].name}") from None
+                time.sleep(0.1)
+                continue
+            self._wait(lambda: self.flight_mode == "OFFBOARD", deadline,
+                       lambda: f"vehicle did not enter offboard to {what} within {OFFBOARD_START_S:g} s")
 
     def settled_at(self, north_m: float, east_m: float, alt_m: float, tolerance_m: float = 0.5) -> bool:
         """Within `tolerance_m` of the point horizontally and vertically, and stopped, not just
@@ -234,7 +302,8 @@ class Flight:
         n, e, d = self.position_ned()
         if math.hypot(n - north_m, e - east_m) > tolerance_m or abs(-d - alt_m) > tolerance_m:
             return False
-        v = self._telemetry.velocity_ned()
+        # Indoors the velocity is LOCAL_POSITION_NED's (MAVSDK's velocity_ned is GLOBAL_POSITION_INT's).
+        v = self._telemetry.position_velocity_ned().velocity if self.local_frame else self._telemetry.velocity_ned()
         return math.hypot(v.north_m_s, v.east_m_s, v.down_m_s) <= SETTLED_M_S
 
     def land(self, timeout_s: float = 120.0) -> None:
@@ -244,10 +313,7 @@ class Flight:
         action, telemetry = self._link()
         self._act("land", action.land)
 
-        def down():
-            return telemetry.landed_state() == LandedState.ON_GROUND and not telemetry.armed()
-
-        self._wait(down, deadline, lambda: (f"vehicle did not land and disarm within {timeout_s:g} s"
+        self._wait(lambda: self.landed, deadline, lambda: (f"vehicle did not land and disarm within {timeout_s:g} s"
                                             f" (at {self._altitude():.1f} m, {telemetry.landed_state().name})"))
 
     # --- state -------------------------------------------------------------------------
@@ -260,6 +326,8 @@ class Flight:
     def position_ned(self) -> tuple[float, float, float]:
         """(north, east, down) metres from home."""
         _, telemetry = self._link()
+        if self._offboard is not None:
+            return self._local()
         pos = telemetry.position()
         home_lat, home_lon, home_alt = self._home
         north, east = geo_to_ned(pos.latitude_deg, pos.longitude_deg, home_lat, home_lon)
@@ -290,6 +358,13 @@ class Flight:
         return min(100.0, max(0.0, pct)) if math.isfinite(pct) else -1.0
 
     @property
+    def battery_time_left_s(self) -> float | None:
+        """The autopilot's own estimate of the flight time its pack has left at the current draw (its
+        seconds: BATTERY_STATUS.time_remaining), or None when it gives none."""
+        t = self._link()[1].battery().time_remaining_s
+        return float(t) if t is not None and math.isfinite(t) and t > 0 else None
+
+    @property
     def armed(self) -> bool:
         return self._link()[1].armed()
 
@@ -302,6 +377,26 @@ class Flight:
         """The autopilot's mode as MAVSDK names it: HOLD, TAKEOFF, LAND, OFFBOARD, ..."""
         return self._link()[1].flight_mode().name
 
+    @property
+    def autopilot(self) -> str:
+        """PX4, ARDUPILOT, GENERIC or UNKNOWN, from the autopilot's heartbeat: modes mean different
+        things (MAVSDK names ArduCopter's GUIDED, the mode a companion flies it in, OFFBOARD)."""
+        return self._system.autopilot_type().name if self._system is not None else "UNKNOWN"
+
+    @property
+    def status_text(self) -> str:
+        """The autopilot's last STATUSTEXT ('' if none): a failsafe says why it took the vehicle."""
+        try:
+            return str(self._link()[1].status_text().text or "")
+        except Exception:  # noqa: BLE001 - MAVSDK raises until a first one arrived
+            return ""
+
+    @property
+    def landed(self) -> bool:
+        """On the ground and disarmed, as the autopilot says."""
+        _, telemetry = self._link()
+        return telemetry.landed_state() == LandedState.ON_GROUND and not telemetry.armed()
+
     # --- helpers -----------------------------------------------------------------------
 
     def _link(self) -> tuple[Action, Telemetry]:
@@ -310,9 +405,16 @@ class Flight:
         return self._action, self._telemetry
 
     def _altitude(self) -> float:
+        if self._offboard is not None:
+            return -self._local()[2]
         return self._telemetry.position().relative_altitude_m
 
+    def _local(self) -> tuple[float, float, float]:
+        p = self._telemetry.position_velocity_ned().position
+        return p.north_m, p.east_m, p.down_m
+
     def _act(self, what: str, call: Callable[[], object]) -> None:
+        self._check_guard()
         try:
             call()
         except ActionError as exc:
@@ -320,9 +422,16 @@ class Flight:
                 raise MissionError(f"vehicle did not answer the request to {what} ({exc.result.name})") from None
             raise MissionError(f"vehicle refused to {what}: {exc.result.name}") from None
 
+    def _check_guard(self) -> None:
+        why = self.guard()
+        if why:
+            raise MissionError(f"vehicle: {why}")
+
     def _wait(self, done: Callable[[], bool], deadline: float, failure: Callable[[], str]) -> None:
-        """Poll `done` until true; MissionError(failure()) at the deadline or on link loss."""
+        """Poll `done` until true; MissionError(failure()) at the deadline, on link loss, or as soon as
+        the guard says the vehicle is not the mission's any more."""
         while True:
+            self._check_guard()
             if done():
                 return
             if self._system is not None and not self._system.is_connected():

@@ -23,10 +23,11 @@ from typing import TYPE_CHECKING, Any
 from protocol.errors import MissionError, PlanningError, ProtocolError
 from protocol.grid import Cell
 from protocol.keys import Keys
-from protocol.messages import (PROTOCOL_VERSION, CameraFrame, CameraRequest, MissionEnd, MissionEvent, MissionStatus,
+from protocol.messages import (PROTOCOL_VERSION, CameraFrame, MissionEnd, MissionEvent, MissionStatus,
                                Plan, Record, RecordRequest, Tick, WorldInfo, WorldInfoRequest, decode, encode)
 from protocol.transport import Transport, open_session, zenoh_config
 
+from .camera_source import CameraSource, CameraSourceConfig, open_camera_source
 from .events import EventLog
 from .fleet import FleetLink
 from .pose_feed import PoseFeed
@@ -84,6 +85,7 @@ class MissionConfig:
     # through the realistic camera (at 17.5, 5 of the 450 warehouse's 50 robots went unread);
     # on the 450 floor with a 4000x3000 camera it is also where 3 x 3 images cover it, not 4 x 3.
     min_px_per_cell: float = 19.0
+    camera: CameraSourceConfig = field(default_factory=CameraSourceConfig)   # where the images come from
 
 
 class _Clock:
@@ -220,6 +222,7 @@ class Mission:
         self.model = None
         self.watch: VehicleWatch | None = None
         self.pose_feed: PoseFeed | None = None
+        self.camera: CameraSource | None = None   # camera_source: the world's query, MAVLink's camera or a video stream
         self._interpreter = None                # interpreted.InterpretedPlanner started ahead on a fresh clone
         self._ended = False
 
@@ -238,12 +241,18 @@ class Mission:
         self.uav["max_altitude_m"] = round(max(self.uav["max_altitude_m"], -down), 2)
 
     def _capture(self, calibration_only: bool = False) -> CameraFrame:
-        frame = _query(self.transport, self.keys.camera, CameraRequest(calibration_only=calibration_only,
-                                                                       seq=self._next()),
-                       CameraFrame, "camera", CAMERA_TIMEOUT_S)
+        frame = self.camera.frame(calibration_only)
         if frame.png:
             self._took(frame)
         return frame
+
+    def _telemetry_pose(self) -> tuple[float, float, float, float, float, float]:
+        """(north, east, down, yaw, roll, pitch) from the autopilot: a video frame's pose."""
+        if self.flight is None:
+            raise MissionError("no autopilot yet")
+        north, east, down, yaw = self.flight.pose()
+        roll, pitch, _ = self.flight.attitude_rad()
+        return north, east, down, yaw, roll, pitch
 
     def _took(self, frame: CameraFrame) -> None:
         self.frames.append(frame)
@@ -261,19 +270,25 @@ class Mission:
         whole to `whole`, which perceives it itself; only the sensor's region `roi`, if given."""
         from .shots import Shots
 
-        area = {} if roi is None else {"roi_x": roi.x, "roi_y": roi.y, "roi_width": roi.width, "roi_height": roi.height}
-        return Shots(lambda: self.transport.request_start(self.keys.camera,
-                                                          encode(CameraRequest(seq=self._next(), **area)),
-                                                          CAMERA_TIMEOUT_S),
-                     self._took, whole or measure or fusion.measure, CAMERA_TIMEOUT_S,
-                     fence=lambda: self.transport.request(self.keys.world_info, encode(WorldInfoRequest(seq=self._next())),
-                                                          QUERY_TIMEOUT_S),
+        return Shots(lambda: self.camera.start(roi), self._took, whole or measure or fusion.measure, CAMERA_TIMEOUT_S,
+                     fence=self.camera.fence,
                      merge=None if whole else fusion.merge, workers=PERCEPTION_WORKERS,
                      max_tilt_rad=math.radians(RETAKE_TILT_DEG))
+
+    def _budget(self, poses, what: str) -> None:
+        """Fly `poses` only if the battery holds them and the landing after, with a reserve."""
+        from .budget import flight_seconds, shortfall
+
+        n, e, d = self.flight.position_ned()
+        why = shortfall(self.flight.battery_time_left_s, flight_seconds(list(poses), (n, e, -d)), what,
+                        self.flight.battery_pct)
+        if why:
+            raise MissionError(why)
 
     def _tour(self, poses, fusion) -> None:
         """Fly over `poses` (north, east, alt), taking an image at each without waiting for it;
         every image is perceived into `fusion` by the time this returns."""
+        self._budget(poses, f"a look of {len(poses)} image(s)")
         shots = self._shots(fusion)
         try:
             for north, east, alt in poses:
@@ -342,6 +357,9 @@ class Mission:
             self.info = info
             from .perception import Landmarks
             self.landmarks = Landmarks.from_info(info)
+            self.camera = open_camera_source(self.cfg.camera, self.transport, self.keys, info, self._next,
+                                             self._telemetry_pose, self.cfg.startup_timeout_s)
+            self.uav["camera_source"] = self.cfg.camera.kind
             self._camera = self._capture(calibration_only=True)   # the camera's intrinsics and lens
             self.frames.clear()
             # The survey's image border needs the lens's full-frame undistortion maps (0.4 s at
@@ -359,7 +377,12 @@ class Mission:
             self.flight.connect(timeout_s=self.cfg.startup_timeout_s)
             for refused in self.flight.stream(TELEMETRY_HZ):
                 self.progress.phase("connect", f"the autopilot keeps its own rate for {refused}")
+            self.uav["frame"] = "local" if self.flight.local_frame else "global"   # indoor: no home, offboard
             self.watch = VehicleWatch(self.flight, self._vehicle_fault)
+            # Every command and every wait of the flight checks it, and every wait for the fleet: the
+            # autopilot's own decision wins, and it is noticed within a poll in every phase.
+            self.flight.guard = lambda: self.watch.fault
+            self.fleet.interrupt = lambda: f"vehicle: {self.watch.fault}" if self.watch.fault else None
             self.pose_feed = PoseFeed(self.flight, lambda p: self.transport.put(self.keys.uav_pose, encode(p)),
                                       t0=self.events.t0)
             self.clock.lap("connect")
@@ -412,6 +435,8 @@ class Mission:
                 self.watch.close()
             if self.pose_feed is not None:
                 self.pose_feed.close()
+            if self.camera is not None:
+                self.camera.close()
             if self.flight is not None:
                 self.flight.close()
             if hasattr(self, "fleet"):
@@ -462,8 +487,11 @@ class Mission:
         self.pose_feed.flying(True)
         # A take-off climbs straight up (PX4's does); the rest of the climb is flown on the way to
         # the first pose, the vehicle climbing and crossing at once.
+        # Watched from the climb on: a failsafe or a ground station may take the vehicle at once.
+        self.watch.expect_airborne(True, taking_off=True)
         self.flight.takeoff(min(poses[0][2], HANDOFF_ALT_M))
-        self.watch.expect_airborne(True)
+        # In the air, the autopilot's estimate is of a hover's draw, not the ground's.
+        self._budget(poses, f"the survey of {len(poses)} image(s)")
         try:
             self.flight.set_speed(SURVEY_SPEED_M_S)
         except MissionError as exc:   # an autopilot without DO_CHANGE_SPEED flies its cruise speed
@@ -1247,6 +1275,7 @@ class Mission:
         deadline = time.monotonic() + DONE_WAIT_S
         with self.fleet.cv:
             while not all(self._done_for(r, plan) for r in plan.ids) and time.monotonic() < deadline:
+                self._check_vehicle()
                 self.fleet.cv.wait(0.1)
             claimed = {r for r in self.ids if r in self.fleet.done}
         self._status("verify", message=f"a fresh look at {len(plan.ids)} robots' goals")
@@ -1348,6 +1377,16 @@ class Mission:
             return
         try:
             self._end(False, "mission aborted")
+            if self.watch is not None and self.watch.failsafe:
+                self._follow_down(timeout_s)
+                return
+            spot = self._abort_spot()
+            if spot is not None:
+                self.progress.phase("abort", f"flying off the floor to land at N {spot[0]:.1f} E {spot[1]:.1f}")
+                try:
+                    self.flight.goto(*spot, timeout_s=timeout_s / 2)
+                except MissionError as exc:   # land where it is rather than not at all
+                    self.progress.phase("abort", f"could not reach the landing spot: {exc}")
             self.progress.phase("abort", "landing the vehicle")
             self.flight.land(timeout_s=timeout_s)
             if self.pose_feed is not None:
@@ -1355,6 +1394,34 @@ class Mission:
             self.uav["landed"] = True
         except Exception as exc:  # noqa: BLE001 - the link may be the thing that failed
             self.progress.phase("abort", f"could not land: {exc}")
+
+    def _follow_down(self, timeout_s: float) -> None:
+        """The autopilot took the vehicle (a failsafe's RTL or LAND, a pilot, a disarm): no command of the
+        mission's goes over its decision, not even a landing; the mission only watches it come down."""
+        taken = self.watch.taken_by
+        self.uav["left_to_autopilot"] = taken
+        self.progress.phase("abort", f"the autopilot has the vehicle ({taken}): not commanding it, watching it land")
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            try:
+                if self.flight.landed:
+                    self.uav["landed"] = True
+                    break
+            except MissionError:
+                break
+            time.sleep(0.2)
+        if self.pose_feed is not None and self.uav["landed"]:
+            self.pose_feed.flying(False)
+
+    def _abort_spot(self) -> tuple[float, float, float] | None:
+        """Where an abort lands (`landing.abort_spot`); None before the floor is known or on the ground."""
+        from .landing import abort_spot
+
+        info = getattr(self, "info", None)
+        if info is None or not self.flight.in_air:
+            return None
+        n, e, d = self.flight.position_ned()
+        return abort_spot(n, e, -d, info.width, info.height, info.cell_size_m)
 
     def _land(self) -> None:
         self._status("land", message="landing over MAVLink")

@@ -118,7 +118,11 @@ class Shots:
     def _receive(self) -> None:
         while (job := self._requests.get()) is not None:
             pending, where = job
-            replies = pending.wait()
+            try:
+                replies = pending.wait()
+            except MissionError as exc:   # a MAVLink or video camera source names its own failure
+                self._fail(str(exc))
+                continue
             if not replies:
                 self._fail(f"no answer from the world's camera within {self._timeout_s:g} s")
                 continue

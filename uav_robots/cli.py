@@ -9,7 +9,7 @@ from protocol.process import command_main
 
 
 def _add_run(sub) -> None:
-    from sim_world.world import add_ground_station_arguments
+    from sim_world.vehicle_cli import add_ground_station_arguments
     from uav_agent.cli import add_planning_arguments
 
     p = sub.add_parser("run", help="run a complete mission: world, UAV and robot processes")
@@ -21,13 +21,30 @@ def _add_run(sub) -> None:
     p.add_argument("--out", help="directory for report.json, overhead.png, paths.png, replay.gif, mission.mcap, "
                                  "replay.mp4, report.html, logs/ (an earlier run's there are removed first)")
     add_planning_arguments(p)
-    p.add_argument("--time-scale", type=float, default=10.0,
-                   help="simulated seconds per wall second for the vehicle (default 10)")
+    p.add_argument("--time-scale", type=float, default=None,
+                   help="simulated seconds per wall second for the vehicle (default 10; 1 with --autopilot, whose "
+                        "clock runs at its own pace: give its speed-up)")
     p.add_argument("--camera", default="", metavar="[PRESET,]K=V,...",
                    help="the world's camera: a preset (ideal, realistic) then keys over it, e.g. 'ideal', "
                         "'realistic,blur_sigma=2' or 'ideal,width=1280,height=960,noise_std=6' (default: the "
                         "realistic 4000x3000, 90 deg camera; every key in README, 'The camera')")
     add_ground_station_arguments(p)
+    p.add_argument("--autopilot", default=None, metavar="URL",
+                   help="fly whatever autopilot answers on this MAVLink link (the UAV's: PX4 SITL's API port, "
+                        "e.g. udpin://0.0.0.0:14540) instead of starting our vehicle process; needs --autopilot-pose")
+    p.add_argument("--autopilot-pose", default=None, metavar="URL",
+                   help="with --autopilot: the link on which the world reads that autopilot's pose for its camera "
+                        "(a ground station's port, e.g. udpin:127.0.0.1:14550)")
+    p.add_argument("--autopilot-origin", default=None, metavar="home|N,E,D",
+                   help="where the autopilot's local frame lies on the floor: 'home' (default: its first home "
+                        "is the floor's top-left corner) or its local origin's N,E,D in metres (indoor, no GPS)")
+    p.add_argument("--vehicle-preset", choices=("outdoor", "indoor"), default="outdoor",
+                   help="our vehicle as an outdoor PX4 (GPS, a home; default) or an indoor one (no GPS: the UAV "
+                        "flies its local frame in offboard, the world places it by its local origin)")
+    p.add_argument("--camera-source", choices=("zenoh", "mavlink", "video"), default="zenoh",
+                   help="how the UAV takes its images: zenoh (the world's world/camera query, default), mavlink "
+                        "(the world's camera as a MAVLink camera: capture commands, images over HTTP) or video "
+                        "(its H.264 RTP stream, the pose from telemetry)")
     p.add_argument("--robots-per-process", type=int, default=None,
                    help="robots hosted per process (default: 1 up to 64 robots, then 4 pools)")
     p.add_argument("--fault", action="append", default=[], metavar="SPEC",
@@ -69,6 +86,7 @@ _SUBCOMMANDS = {
     "run": (__name__, "_add_run"),
     "uav": ("uav_agent.cli", "add_uav_parser"),
     "world": ("sim_world.world", "add_world_parser"),
+    "vehicle": ("sim_world.vehicle_cli", "add_vehicle_parser"),
     "robot": ("robot_agents.agent", "add_robot_parser"),
     "plan": ("uav_robots.plan_cli", "add_plan_parser"),
     "build": ("uav_robots.plan_cli", "add_build_parser"),

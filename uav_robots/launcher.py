@@ -36,12 +36,15 @@ from robot_agents.faults import parse_fault
 from sim_world.world import is_world_fault
 
 from . import outputs
+from .camera_wiring import camera_wiring
 from .tee import Tee
 
 GRACE_S = 3.0
 # The UAV, told to stop (SIGTERM), writes its report and lands its vehicle (its own bound: 10 s) before
 # it exits; after this long it is killed, and the launcher writes the report it could not.
 UAV_STOP_S = 15.0
+VEHICLE_STOP_S = 100.0   # our vehicle, told to stop in the air, lands first (vehicle_cli.LAND_ON_STOP_S)
+DEFAULT_GEOFENCE_M = 1000.0   # the vehicle's GF_MAX_HOR_DIST unless told otherwise
 # Robots are not needed before the first plan; 50 Python start-ups at once would starve the
 # world's and the UAV's on a small machine, so they start once the UAV flies (its pose feed
 # runs), and at the latest this long after the UAV.
@@ -68,6 +71,15 @@ class Child:
         return " | ".join(text[-lines:])
 
 
+def mavsdk_url(url: str) -> str:
+    """A MAVLink link as MAVSDK opens it: pymavlink's spelling (udpin:HOST:PORT, tcp:HOST:PORT) too."""
+    if "://" in url:
+        return url
+    kind, sep, rest = url.partition(":")
+    scheme = {"udpin": "udpin", "udp": "udpin", "udpout": "udpout", "tcp": "tcpout", "tcpin": "tcpin"}.get(kind)
+    return f"{scheme}://{rest}" if sep and scheme else url
+
+
 def robot_groups(n: int, per_process: int | None) -> list[list[int]]:
     """One process per robot for small fleets; pools beyond (one process per robot stops scaling near 100)."""
     if per_process is None:
@@ -82,7 +94,9 @@ class Launcher:
         self.children: list[Child] = []
         self.fleet = new_fleet_name()
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
-        self.udp = free_port(socket.SOCK_DGRAM)
+        self.udp = free_port(socket.SOCK_DGRAM)        # the UAV's MAVLink port: the vehicle sends there
+        self.pose_udp = free_port(socket.SOCK_DGRAM)   # the world's: the vehicle's pose link sends there
+        self.floor_shape: tuple[int, ...] | None = None   # the map's, for the vehicle's geofence
         # Without --out the outputs are temporary, unless the run fails: then they are what the user needs.
         self.temporary = not args.out
         self.out = Path(args.out).resolve() if args.out else Path(tempfile.mkdtemp(prefix="uav-robots-"))
@@ -171,8 +185,11 @@ class Launcher:
         common = ["--fleet", self.fleet]
         # First, so that the compile overlaps every other process's start-up.
         self.compiler = warm.start(a.planner, a.connectivity)
-        uav = self._spawn("uav", "uav_agent", [*common, *self.session_args("uav", hub=True), "--robots", str(a.robots),
-                                  "--mavlink", f"udpin://127.0.0.1:{self.udp}", "--out", str(self.out),
+        self.start_vehicle()
+        camera_world, camera_uav = camera_wiring(getattr(a, "camera_source", "zenoh"),
+                                                 lambda: free_port(socket.SOCK_DGRAM))
+        uav = self._spawn("uav", "uav_agent", [*camera_uav, *common, *self.session_args("uav", hub=True), "--robots", str(a.robots),
+                                  "--mavlink", self.autopilot_url(), "--out", str(self.out),
                                   *(["--assign", a.assign] if a.assign else []),
                                   "--connectivity", str(a.connectivity),
                                   "--time-limit", str(a.time_limit), "--seed", str(a.seed),
@@ -186,14 +203,48 @@ class Launcher:
         self._spawn("world", "sim_world", [*common, *self.session_args("world"), "--map", a.map,
                               "--robots", str(a.robots), "--seed", str(a.seed),
                               "--connectivity", str(a.connectivity),
-                              "--mavlink", f"udpout:127.0.0.1:{self.udp}", "--time-scale", str(a.time_scale),
+                              *self.follow_args(), "--time-scale", str(a.time_scale),
                               *(["--camera", a.camera] if a.camera else []),
-                              *(["--gcs", a.gcs] if a.gcs else []),
-                              *(["--mavlink-key", a.mavlink_key] if a.mavlink_key else []),
-                              "--mavlink-bind", a.mavlink_bind,
+                              "--mavlink-bind", a.mavlink_bind, *camera_world,
                               *[x for f in a.fault if is_world_fault(f) for x in ("--fault", f)]])
         self.robots_due = time.monotonic() + ROBOTS_AT_LATEST_S
         return uav
+
+    def start_vehicle(self) -> Child | None:
+        """Our simulated autopilot as a process of its own, as a SITL binary (none with --autopilot): the UAV
+        flies it on its MAVLink port, the world follows its pose on a third link, the same path as with
+        any autopilot's telemetry."""
+        from sim_world.camera import CameraModel
+        from sim_world.world import DRONE_CAMERA, camera_options, fence_reach_m
+
+        a = self.args
+        if getattr(a, "autopilot", None):
+            return None
+        wobble = CameraModel(**{**DRONE_CAMERA, **camera_options(a.camera)}).wobble_deg
+        reach = fence_reach_m(self.floor_shape, 1.0) if self.floor_shape is not None else 0.0
+        return self._spawn("vehicle", "sim_world.vehicle", [
+            "--mavlink", f"udpout:127.0.0.1:{self.udp}", "--pose-link", f"udpout:127.0.0.1:{self.pose_udp}",
+            "--time-scale", str(a.time_scale), "--seed", str(a.seed), "--wobble", str(wobble),
+            "--preset", getattr(a, "vehicle_preset", "outdoor"),
+            # The geofence must not cut off part of a large floor (the vehicle's default covers 1 km).
+            *(["--param", f"GF_MAX_HOR_DIST={reach:.1f}"] if reach > DEFAULT_GEOFENCE_M else []),
+            *(["--gcs", a.gcs] if a.gcs else []),
+            *(["--mavlink-key", a.mavlink_key] if a.mavlink_key else []),
+            "--mavlink-bind", a.mavlink_bind])
+
+    def autopilot_url(self) -> str:
+        """The UAV's MAVLink link (MAVSDK's spelling): --autopilot's, or where our vehicle sends."""
+        given = getattr(self.args, "autopilot", None)
+        return mavsdk_url(given) if given else f"udpin://127.0.0.1:{self.udp}"
+
+    def follow_args(self) -> list[str]:
+        """The world flies no vehicle: it follows the autopilot's pose (--autopilot-pose, or our vehicle's)."""
+        a = self.args
+        pose = getattr(a, "autopilot_pose", None) or f"udpin:127.0.0.1:{self.pose_udp}"
+        origin = getattr(a, "autopilot_origin", None)
+        if origin is None and getattr(a, "vehicle_preset", "outdoor") == "indoor" and not getattr(a, "autopilot", None):
+            origin = "0,0,0"   # our indoor vehicle's local frame starts where home would be: the floor's corner
+        return ["--autopilot-pose", pose, *(["--autopilot-origin", origin] if origin else [])]
 
     def start_robots(self) -> None:
         if self.robots_started:
@@ -255,7 +306,11 @@ class Launcher:
             print(f"uav-robots: stopping the UAV ({self.stop_reason or 'the launcher failed'}): it writes its "
                   f"report and lands, {UAV_STOP_S:g} s at most", file=sys.stderr, flush=True)
         self._end(uav, graceful, UAV_STOP_S)
-        self._end([c for c in self.children if c.name != "uav"], graceful, GRACE_S)
+        # An autopilot never ends on its own: the UAV is done with it. Still in the air (the UAV died), it
+        # lands before it stops, and is given the time to.
+        vehicle = [c for c in self.children if c.name == "vehicle"]
+        self._end(vehicle, False, VEHICLE_STOP_S)
+        self._end([c for c in self.children if c.name not in ("uav", "vehicle")], graceful, GRACE_S)
         for c in uav:
             if c.tee is not None:
                 c.tee.join(2.0)   # its last lines (a grandchild holding the pipes open is not waited for)
@@ -302,7 +357,7 @@ class Launcher:
 
     def pids(self) -> dict:
         by = {c.name: c.proc.pid for c in self.children}
-        return {"uav": by.get("uav"), "world": by.get("world"),
+        return {"uav": by.get("uav"), "world": by.get("world"), "vehicle": by.get("vehicle"),
                 "robots": [c.proc.pid for c in self.children if c.name.startswith("robots-")],
                 "launcher": os.getpid(), "compiler": self.compiler.pid if self.compiler is not None else None}
 
@@ -315,6 +370,27 @@ def _number(name: str, value: float, lo: float, hi: float, lo_open: bool = False
     ok = math.isfinite(value) and (value > lo if lo_open else value >= lo) and value <= hi
     if not ok:
         raise UavRobotsError(f"{name} must be a number in {'(' if lo_open else '['}{lo:g}, {hi:g}], got {value:g}")
+
+
+def check_autopilot(args) -> None:
+    """--autopilot and --autopilot-pose go together, and leave our vehicle's options out; the time scale
+    defaults to our vehicle's 10, or 1 for another autopilot (its clock runs at its own pace)."""
+    from sim_world.pose_follower import check_pose_url, parse_origin
+
+    given, pose = getattr(args, "autopilot", None), getattr(args, "autopilot_pose", None)
+    if getattr(args, "time_scale", None) is None:
+        args.time_scale = 1.0 if given else 10.0
+    if bool(given) != bool(pose):
+        raise UavRobotsError("--autopilot URL (the UAV's link) and --autopilot-pose URL (the world's) go together")
+    if getattr(args, "autopilot_origin", None) is not None and not pose:
+        raise UavRobotsError("--autopilot-origin places a followed autopilot: give --autopilot-pose URL too")
+    if not given:
+        return
+    if args.gcs or args.mavlink_key or getattr(args, "vehicle_preset", "outdoor") != "outdoor":
+        raise UavRobotsError("--gcs, --mavlink-key and --vehicle-preset configure our vehicle, which --autopilot "
+                             "replaces: give a ground station its link on the autopilot itself")
+    check_pose_url(pose, args.mavlink_bind)
+    parse_origin(args.autopilot_origin)
 
 
 def check_arguments(args) -> tuple[str, object]:
@@ -333,6 +409,7 @@ def check_arguments(args) -> tuple[str, object]:
     if getattr(args, "view_hold", None) is not None:
         _number("--view-hold", args.view_hold, 0, 7 * 86400)
     _number("--seed", args.seed, 0, 2**32 - 1)
+    check_autopilot(args)
     _number("--time-scale", args.time_scale, 0, 1000, lo_open=True)
     _number("--tick-rate", args.tick_rate, 0, 1000)
     _number("--timeout", args.timeout, 0, 7 * 86400, lo_open=True)
@@ -364,8 +441,9 @@ def check_arguments(args) -> tuple[str, object]:
     for r in world_faults([f for f in args.fault if is_world_fault(f)]).skids:
         if r >= args.robots:
             raise UavRobotsError(f"--fault skid:{r}@...: there is no robot {r} in a fleet of {args.robots}")
-    vehicle_config(WorldConfig(fleet="check", gcs=args.gcs, mavlink_key=args.mavlink_key,
-                               mavlink_bind=args.mavlink_bind))
+    if not args.autopilot:
+        vehicle_config(WorldConfig(fleet="check", gcs=args.gcs, mavlink_key=args.mavlink_key,
+                                   mavlink_bind=args.mavlink_bind))
     for f in map(parse_fault, (f for f in args.fault if not is_world_fault(f))):
         if f.robot >= args.robots:
             raise UavRobotsError(f"--fault {f}: there is no robot {f.robot} in a fleet of {args.robots}")
@@ -479,6 +557,7 @@ def _why(exc: BaseException) -> str:
 def run(args) -> int:
     name, free = check_arguments(args)
     launcher = Launcher(args)
+    launcher.floor_shape = free.shape
     try:
         return _run(args, launcher, name, free)
     finally:
@@ -490,7 +569,9 @@ def _run(args, launcher: "Launcher", name: str, free) -> int:
     if not (args.quiet or args.json):
         print(f"uav-robots: map {name} ({free.shape[1]}x{free.shape[0]}), {args.robots} robots, "
               f"fleet {launcher.fleet}, zenoh {launcher.endpoint}"
-              f"{' (mutual TLS, access control)' if launcher.secure_dir else ''}, mavlink udp:{launcher.udp}"
+              f"{' (mutual TLS, access control)' if launcher.secure_dir else ''}, "
+              + (f"autopilot {args.autopilot} (pose {args.autopilot_pose})" if args.autopilot
+                 else f"vehicle process, mavlink udp:{launcher.udp}")
               + (f", ground station {args.gcs}" if args.gcs else ""), flush=True)
     observer = ahead = uav = None
     code: int | None = None

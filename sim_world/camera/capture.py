@@ -2,28 +2,20 @@
 the vehicle's ESTIMATE of its pose."""
 from __future__ import annotations
 
-from typing import NamedTuple
 
 from protocol.messages import CameraFrame
 
 from .degrade import prepare_degrade
+from ..pose_track import Pose
 from .encode import camera_frame, encode_frame
 from .estimate import PoseEstimator
 from .model import CameraModel
 from .render import CameraPose, Roi, Scene, lens_for, render
 
 
-class VehicleView(NamedTuple):
+class VehicleView(Pose):
     """The camera's true pose at exposure, and the vehicle's velocity (NED, m/s)."""
-    north_m: float
-    east_m: float
-    down_m: float
-    yaw_rad: float = 0.0
-    roll_rad: float = 0.0
-    pitch_rad: float = 0.0
-    vel_north: float = 0.0
-    vel_east: float = 0.0
-    vel_down: float = 0.0
+    __slots__ = ()
 
     @property
     def pose(self) -> CameraPose:
@@ -52,6 +44,12 @@ def capture_frame(scene: Scene, view: VehicleView, model: CameraModel, cell_size
     image = render(scene, pose, model, cell_size_m, seed=seed if seed is not None else seq,
                    velocity_ned=(view.vel_north, view.vel_east, view.vel_down), roi=roi)
     return encode_frame(image, estimator.estimate(pose, time_s), model, time_s, seq, roi)
+
+
+def view_image(scene: Scene, view: VehicleView, model: CameraModel, cell_size_m: float, seed: int = 0):
+    """The BGR image of an exposure from `view`, not encoded (a video frame)."""
+    return render(scene, _camera_pose(view, model), model, cell_size_m, seed=seed,
+                  velocity_ned=(view.vel_north, view.vel_east, view.vel_down))
 
 
 def prepare(model: CameraModel) -> None:
