@@ -91,6 +91,8 @@ def add_vehicle_arguments(p: argparse.ArgumentParser) -> None:
                         "puts the floor's top-left corner there")
     p.add_argument("--time-scale", type=float, default=1.0, metavar="X", help="simulated seconds per second")
     p.add_argument("--seed", type=int, default=0, help="seed of the hover wobble")
+    p.add_argument("--heading", type=float, default=None, metavar="DEG",
+                   help="where the vehicle faces when it boots, degrees from north (default 0)")
     p.add_argument("--wobble", type=float, default=0.0, metavar="DEG",
                    help="amplitude of the roll and pitch wobble in a hover, degrees (default 0)")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
@@ -128,7 +130,7 @@ def vehicle_config_from_args(args: argparse.Namespace) -> Any:
 
 def _estimate_options(args: argparse.Namespace) -> dict:
     """The vehicle-only options (`uav-robots world`, which shares the rest, has none of these)."""
-    names = {"position_noise": "position_noise_m", "position_bias": "position_bias_m",
+    names = {"heading": "heading_deg", "position_noise": "position_noise_m", "position_bias": "position_bias_m",
              "attitude_noise": "attitude_noise_deg", "companion": "companion_system_id"}
     return {field: getattr(args, arg) for arg, field in names.items() if getattr(args, arg, None) is not None}
 

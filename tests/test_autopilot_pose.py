@@ -173,6 +173,8 @@ def test_a_whole_run_flies_an_external_autopilot_and_renders_from_its_pose(tmp_p
     with open(vehicle_log, "w") as log:
         vehicle = subprocess.Popen([sys.executable, "-m", "uav_robots", "vehicle", "--mavlink",
                                     f"udpout:127.0.0.1:{uav_port}", "--gcs", f"udpout:127.0.0.1:{pose_port}",
+                                    # as ArduCopter: a goto's yaw is not flown, it keeps the heading it has
+                                    "--heading", "30", "--param", "SIM_GOTO_YAW=0",
                                     "--time-scale", "10"], stdout=log, stderr=subprocess.STDOUT,
                                    stdin=subprocess.DEVNULL)
     out = tmp_path / "out"
@@ -189,6 +191,9 @@ def test_a_whole_run_flies_an_external_autopilot_and_renders_from_its_pose(tmp_p
     assert report["completed"] is True and report["processes"]["vehicle"] is None
     perceived = report["perceived"]   # from images rendered where the followed pose said the camera was
     assert perceived["map_matches_truth"] and perceived["robots"] == report["truth"]["robots"], perceived
+    # turned 30 degrees, the survey's tiles were what a turned image holds: no cell left for a closer look
+    assert report["uav"]["heading_kept_deg"] == pytest.approx(30.0, abs=1.0)
+    assert not [e for e in report["events"] if e["kind"] == "closer-look"], report["events"]
     truth = report["truth"]["vehicle"]
     assert truth["source"] == "telemetry" and truth["url"] == f"udpin:127.0.0.1:{pose_port}"
     assert truth["max_altitude_m"] > 5.0 and not truth["armed"] and truth["landed_state"] == "ON_GROUND"

@@ -29,7 +29,7 @@ from sim_world.camera import (
 )
 from scenarios.maps import place, random_map, resolve_map, warehouse
 from uav_agent.perception import Frame, decode_frame, homography, perceive
-from uav_agent.survey import covering, nearer_end_first, path_length, survey_poses
+from uav_agent.survey import covering, heading_border, nearer_end_first, path_length, survey_poses
 
 CELL = 1.0
 
@@ -486,3 +486,22 @@ def test_the_survey_border_counts_the_lens_the_tilt_and_the_hold_and_the_450_flo
     assert Mission._border(pincushion, 19.0, 1.0) == (8 + lens + tx + 19, 8 + lens + ty + 19)
     poses = survey_poses(450, 450, CELL, realistic, min_px_per_cell=19.0, border_px=Mission._border(realistic))
     assert len(poses) == 9 and 2000 / poses[0].alt_m >= 19.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(-math.pi, math.pi), st.integers(0, 200), st.integers(0, 200))
+def test_a_turned_footprint_holds_the_whole_north_up_tile_its_border_leaves(heading, bx, by):
+    """An autopilot that flies no goto's yaw (ArduCopter) keeps its heading: the border `heading_border`
+    gives leaves a north-up tile whose every corner the turned image still shows."""
+    class Lens:
+        width, height, fx, fy = 4000, 3000, 2100.0, 1900.0
+    nx, ny = heading_border(Lens, (bx, by), heading)
+    assert nx >= bx and ny >= by
+    half = ((Lens.width - 2 * nx) / Lens.fx / 2, (Lens.height - 2 * ny) / Lens.fy / 2)   # the tile, metres per metre
+    full = ((Lens.width - 2 * bx) / Lens.fx / 2, (Lens.height - 2 * by) / Lens.fy / 2)   # the turned image's
+    c, s_ = math.cos(heading), math.sin(heading)
+    for x, y in itertools.product((-half[0], half[0]), (-half[1], half[1])):
+        u, v = x * c + y * s_, -x * s_ + y * c   # the corner in the image's own axes
+        assert abs(u) <= full[0] * (1 + 1e-9) + 1e-9 and abs(v) <= full[1] * (1 + 1e-9) + 1e-9
+    if abs(math.sin(heading)) < 1e-9:
+        assert (nx, ny) == (bx, by)   # facing north or south: nothing is given up

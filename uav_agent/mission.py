@@ -42,6 +42,8 @@ QUERY_TIMEOUT_S = 10.0
 CAMERA_TIMEOUT_S = 30.0    # a 12 MP image rendered on a loaded machine, or sent over a slow link
 ABORT_LAND_TIMEOUT_S = 60.0
 OBSERVER_WAIT_S = 5.0      # for the recorders the UAV was told of (MissionConfig.observers); then it goes on
+# A heading further than this from north after the first goto: the autopilot does not fly a goto's yaw.
+HEADING_TOLERANCE_DEG = 3.0
 LEVEL_TILT_DEG = 0.6       # a shutter (survey, fresh look, closer look) waits for the body, and its camera, this level ...
 LEVEL_WAIT_S = 3.0         # ... for at most this long: a vehicle that has just braked hangs at its tilt limit
 # An image whose own published attitude leans further is taken again: beyond the level the shutter
@@ -224,6 +226,7 @@ class Mission:
         self.pose_feed: PoseFeed | None = None
         self.camera: CameraSource | None = None   # camera_source: the world's query, MAVLink's camera or a video stream
         self._interpreter = None                # interpreted.InterpretedPlanner started ahead on a fresh clone
+        self._heading = 0.0                     # the vehicle's kept heading when it flies no goto's yaw
         self._ended = False
 
     # ------------------------------------------------------------ helpers
@@ -497,6 +500,7 @@ class Mission:
         except MissionError as exc:   # an autopilot without DO_CHANGE_SPEED flies its cruise speed
             self.progress.phase("survey", f"keeping the vehicle's cruise speed: {exc}")
         self.flight.goto(*poses[0])
+        poses = self._poses = self._turned_survey(poses)
         self._track_altitude()
         self.clock.lap("takeoff")
         # The images are perceived while the vehicle flies on. The first one also measures the
@@ -564,7 +568,7 @@ class Mission:
         grey) image; else the survey poses at the resolution that does (measured from the image's
         own edges)."""
         from .perception.blur import blur_sigma
-        from .survey import ROBOT_MODULE_CELLS, px_per_cell_for, survey_poses
+        from .survey import ROBOT_MODULE_CELLS, heading_border, px_per_cell_for, survey_poses
 
         sigma = blur_sigma(gray)
         c = self.info.cell_size_m
@@ -577,7 +581,25 @@ class Mission:
         self.progress.phase("survey", f"the camera blurs by {sigma:.1f} px: surveying at {need:.0f} px per cell "
                                       f"instead of {self.cfg.min_px_per_cell:g}")
         return survey_poses(self.info.width, self.info.height, c, camera, min_px_per_cell=need,
-                            border_px=self._border(camera, need, c))
+                            border_px=heading_border(camera, self._border(camera, need, c), self._heading))
+
+    def _turned_survey(self, poses):
+        """The survey's poses again if the autopilot kept another heading than the goto's north (ArduCopter
+        ignores a goto's yaw): the footprints are turned, so each tile is what a turned image surely holds."""
+        from .survey import heading_border, survey_poses
+
+        heading = math.remainder(self.flight.pose()[3], 2 * math.pi)
+        if abs(heading) <= math.radians(HEADING_TOLERANCE_DEG):
+            return poses
+        self._heading = heading
+        turned = survey_poses(self.info.width, self.info.height, self.info.cell_size_m, self._camera,
+                              min_px_per_cell=self.cfg.min_px_per_cell,
+                              border_px=heading_border(self._camera, self._survey_border.result(), heading))
+        self.uav["heading_kept_deg"] = round(math.degrees(heading), 1)
+        self.progress.phase("survey", f"the autopilot keeps its heading of {math.degrees(heading):.0f} deg (a "
+                                      f"goto's yaw is not flown): {len(turned)} turned footprint(s) instead of "
+                                      f"{len(poses)}")
+        return turned
 
     @staticmethod
     def _border(camera: CameraFrame, px_per_cell: float = MissionConfig.min_px_per_cell,

@@ -85,6 +85,19 @@ def _centres(extent_m: float, usable_m: float, n: int) -> list[float]:
     return [usable_m / 2 + i * stride for i in range(n)]
 
 
+def heading_border(model: CameraLike, border_px: tuple[int, int], heading_rad: float) -> tuple[int, int]:
+    """The border that leaves, of a footprint turned by `heading_rad` (an autopilot that ignores a
+    goto's yaw: ArduCopter), the largest north-up rectangle of the same proportions centred in it:
+    the survey's tiles are north-up, and a turned image must still hold its whole tile."""
+    bx, by = border_px
+    a, b = (model.width - 2 * bx) / model.fx, (model.height - 2 * by) / model.fy   # metres per metre up
+    c, s = abs(math.cos(heading_rad)), abs(math.sin(heading_rad))
+    k = min(1.0, a / (a * c + b * s), b / (a * s + b * c))
+    # rounded up, but not for a rounding error's sake (facing south, sin(pi) is 1e-16)
+    return (math.ceil((model.width - k * (model.width - 2 * bx)) / 2 - 1e-6),
+            math.ceil((model.height - k * (model.height - 2 * by)) / 2 - 1e-6))
+
+
 def survey_poses(width: int, height: int, cell_size_m: float, model: CameraLike, min_px_per_cell: float = 20.0,
                  max_alt_m: float = 120.0, min_alt_m: float = 3.0,
                  border_px: int | tuple[int, int] = 8) -> list[SurveyPose]:

@@ -68,7 +68,7 @@ class Autopilot:
         self._mode = Mode.HOLD
         self._target: Vec3 = dynamics.position
         self._velocity: tuple | None = None  # an offboard velocity (per axis, None: fly to the target)
-        self._target_yaw = 0.0
+        self._target_yaw = dynamics.pose()[3]   # it keeps the heading it booted with until told another
         self._speed_xy = cruise_speed_m_s  # DO_CHANGE_SPEED and DO_REPOSITION set it
         self._touchdown_at: float | None = None  # simulated time the vehicle last touched down
         self._landing = False  # descending to land (LAND, the end of RTL or of a mission)
@@ -246,7 +246,7 @@ class Autopilot:
                 return self._refuse(f"Reposition denied: target outside the geofence ({outside})")
             self._switch(Mode.HOLD, "reposition")
             self._target = (north, east, down)
-            if yaw is not None:
+            if yaw is not None and self._params.get("SIM_GOTO_YAW"):   # 0: as ArduCopter, which ignores it
                 self._target_yaw = yaw
             if speed_m_s is not None:
                 self._speed_xy = min(speed_m_s, self._params.get("MPC_XY_VEL_MAX"))

@@ -53,6 +53,7 @@ class VehicleConfig:
     pose_url: str | None = None
     bind_host: str = "127.0.0.1"
     hover_wobble_deg: float = 0.0  # amplitude of the roll/pitch wobble in the air (see dynamics.Wobble)
+    heading_deg: float = 0.0       # where the vehicle faces when it boots (a drone set down any way round)
     seed: int = 0                  # of the wobble and the estimator's noise
     # MPC_ACC_HOR / MPC_ACC_UP_MAX / MPC_ACC_DOWN_MAX / MPC_JERK_AUTO (see dynamics.step_limited)
     max_accel_m_s2: float = 5.0
@@ -77,6 +78,8 @@ class VehicleConfig:
         if not (math.isfinite(self.home_alt_m) and math.isfinite(self.disarm_after_land_s)
                 and self.disarm_after_land_s >= 0):
             raise MissionError("vehicle home_alt_m and disarm_after_land_s must be finite (the latter >= 0)")
+        if not (math.isfinite(self.heading_deg) and -360 <= self.heading_deg <= 360):
+            raise MissionError(f"vehicle heading_deg must be in [-360, 360], got {self.heading_deg}")
         if not (math.isfinite(self.hover_wobble_deg) and 0 <= self.hover_wobble_deg <= 30):
             raise MissionError(f"vehicle hover_wobble_deg must be in [0, 30], got {self.hover_wobble_deg}")
         for name, top in (("position_noise_m", 100.0), ("position_bias_m", 100.0), ("attitude_noise_deg", 30.0)):

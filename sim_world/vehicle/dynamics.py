@@ -273,14 +273,14 @@ class Dynamics:
     may reach (a parameter, so it is asked at every use)."""
 
     def __init__(self, lock: threading.RLock, journal: Journal, ceiling: Callable[[], float],
-                 wobble_deg: float = 0.0, seed: int = 0):
+                 wobble_deg: float = 0.0, seed: int = 0, heading_rad: float = 0.0):
         self._lock = lock
         self._journal = journal
         self._ceiling = ceiling
         self._pos: Vec3 = (0.0, 0.0, 0.0)
         self._vel: Vec3 = (0.0, 0.0, 0.0)
         self._cmd_acc: Vec3 = (0.0, 0.0, 0.0)  # the trajectory's acceleration (limited setpoints)
-        self._yaw = 0.0
+        self._yaw = (heading_rad + math.pi) % (2 * math.pi) - math.pi
         self._accel = (0.0, 0.0)         # horizontal acceleration (north, east) the attitude produces
         self._attitude = (0.0, 0.0)      # (roll, pitch) with the wobble
         self._rates = (0.0, 0.0)

@@ -85,6 +85,8 @@ class Params:
             "BAT1_CAPACITY": _Param(16000.0, 1.0, 1e6),
             "BAT1_N_CELLS": _Param(6.0, 1.0, 14.0, INT32),
             "SIM_BAT_HOVER_A": _Param(15.0, 0.0, 1000.0),
+            # 1: a reposition's yaw is flown, as PX4 does; 0: kept as it was, as ArduCopter's guided goto does
+            "SIM_GOTO_YAW": _Param(1.0, 0.0, 1.0, INT32),
             "BAT_LOW_THR": _Param(0.15, 0.12, 0.5),
             "BAT_CRIT_THR": _Param(0.07, 0.05, 0.5),
             "BAT_EMERGEN_THR": _Param(0.05, 0.03, 0.5),

@@ -1,6 +1,7 @@
 """The `Vehicle` facade: builds the parts, wires them together and runs their threads."""
 from __future__ import annotations
 
+import math
 import threading
 import time
 
@@ -42,7 +43,8 @@ class Vehicle:
         self._link = Link(cfg, self._lock, self._journal)
         self._params = Params(cfg, self._lock, self._journal, self._link)
         self._dynamics = Dynamics(self._lock, self._journal, ceiling=lambda: self._params.get("LNDMC_ALT_MAX"),
-                                  wobble_deg=cfg.hover_wobble_deg, seed=cfg.seed)
+                                  wobble_deg=cfg.hover_wobble_deg, seed=cfg.seed,
+                                  heading_rad=math.radians(cfg.heading_deg))
         self._offboard = Offboard(cfg, self._lock, self._journal, self._link, self._dynamics)
         self._estimator = Estimator(cfg, self._lock)
         self._payload = Payload(self._lock, self._journal, announce=self._announce_trigger)
