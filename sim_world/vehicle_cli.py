@@ -107,6 +107,12 @@ def add_vehicle_arguments(p: argparse.ArgumentParser) -> None:
                         "it is, off by it (default 0)")
     p.add_argument("--attitude-noise", type=float, default=0.0, metavar="DEG",
                    help="white noise (1 sigma, degrees) on the reported roll, pitch and yaw (default 0)")
+    p.add_argument("--streams-until-asked", action="store_true", default=None,
+                   help="send nothing but the heartbeat until a link asks for a stream (SET_MESSAGE_INTERVAL), as "
+                        "ArduPilot does with its SRn_ rates at 0")
+    p.add_argument("--ready-after", type=float, default=None, metavar="S",
+                   help="refuse arming for this many simulated seconds after boot (an estimator settling; "
+                        "ArduPilot SITL accepts GUIDED and arming only about 38 s after it starts)")
     p.add_argument("--companion", type=int, default=None, metavar="SYSID",
                    help="the only MAVLink system the flight link answers (default: the first that talks to it)")
 
@@ -131,7 +137,8 @@ def vehicle_config_from_args(args: argparse.Namespace) -> Any:
 def _estimate_options(args: argparse.Namespace) -> dict:
     """The vehicle-only options (`uav-robots world`, which shares the rest, has none of these)."""
     names = {"heading": "heading_deg", "position_noise": "position_noise_m", "position_bias": "position_bias_m",
-             "attitude_noise": "attitude_noise_deg", "companion": "companion_system_id"}
+             "attitude_noise": "attitude_noise_deg", "companion": "companion_system_id",
+             "streams_until_asked": "streams_until_asked", "ready_after": "ready_after_s"}
     return {field: getattr(args, arg) for arg, field in names.items() if getattr(args, arg, None) is not None}
 
 

@@ -72,6 +72,31 @@ def test_connect_arm_takeoff_goto_land(link):
     assert vehicle.bad_frames == 0  # MAVSDK sends nothing the vehicle cannot parse
 
 
+def test_an_autopilot_that_streams_nothing_until_asked_and_arms_late_is_connected_and_flown():
+    """ArduPilot streams nothing but its heartbeat until a link asks (its SRn_ rates at 0), and MAVSDK asks
+    for nothing: without asking, `connect` would wait for a home and a position that never come. It also
+    refuses to arm for a while after it starts (its estimator settling): the arm is asked again."""
+    port = free_udp_port()
+    flight = Flight(f"udpin://127.0.0.1:{port}").open()
+    vehicle = Vehicle(VehicleConfig(url=f"udpout:127.0.0.1:{port}", time_scale=20.0, streams_until_asked=True,
+                                    ready_after_s=40.0)).start()
+    try:
+        flight.connect(timeout_s=10)
+        assert flight.home()[:2] == pytest.approx((vehicle.config.home_lat, vehicle.config.home_lon), abs=1e-7)
+        waited: list[str] = []
+        flight.arm(timeout_s=10, on_wait=waited.append)
+        assert len(waited) == 1 and "refused to arm" in waited[0] and "estimator not ready" in waited[0], waited
+        assert vehicle.sim_time_s >= 40.0
+        flight.takeoff(5.0, timeout_s=15)
+        assert flight.goto(10.0, 0.0, 5.0, timeout_s=15) == pytest.approx((10.0, 0.0, -5.0), abs=0.5)
+        assert flight.battery_pct > 0 and flight.in_air
+        flight.land(timeout_s=15)
+        assert flight.landed and not vehicle.armed
+    finally:
+        flight.close()
+        vehicle.stop()
+
+
 def test_connect_times_out_fast_without_a_vehicle():
     url = f"udpin://127.0.0.1:{free_udp_port()}"
     started = time.monotonic()

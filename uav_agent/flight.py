@@ -39,7 +39,8 @@ SETTLED_M_S = 0.5  # a goto has arrived once the vehicle is this slow near its t
 # An autopilot that has a local position but has sent no home this long after it is indoor (PX4 on
 # vision or optical flow: no GPS, no home): the mission flies its local frame, in offboard.
 NO_HOME_S = 3.0
-OFFBOARD_START_S = 3.0   # how long the switch to offboard may take once setpoints stream
+OFFBOARD_START_S = 3.0
+ARM_RETRY_S = 1.0        # a refused arm is asked again this often while the autopilot gets ready   # how long the switch to offboard may take once setpoints stream
 
 _log = logging.getLogger("uav_agent.flight")
 _log_installed = threading.Lock()
@@ -119,6 +120,7 @@ class Flight:
         self._system = system
         self._action = Action(system)
         self._telemetry = Telemetry(system)
+        self._wake_streams()
 
         def home_and_position():
             home, pos = self._telemetry.home(), self._telemetry.position()
@@ -153,6 +155,19 @@ class Flight:
         _log.info("connected to autopilot %d at %s, home %.7f %.7f %.1f m", system.get_system_id(), self.url,
                   *self._home)
         return self
+
+    def _wake_streams(self) -> None:
+        """Ask for what `connect` and the watch read, at once: ArduPilot streams nothing until asked (its SRn_
+        rates at 0) and MAVSDK does not ask, so its home and position would never come. A stream the autopilot
+        refuses is no error (PX4 streams them anyway; an indoor one has no global position to send)."""
+        t = self._telemetry
+        for call, hz in ((t.set_rate_home, 1.0), (t.set_rate_position, 10.0), (t.set_rate_position_velocity_ned, 10.0),
+                         (t.set_rate_attitude_euler, 10.0), (t.set_rate_in_air, 5.0), (t.set_rate_landed_state, 5.0),
+                         (t.set_rate_battery, 1.0), (t.set_rate_gps_info, 1.0)):
+            try:
+                call(hz)
+            except Exception:  # noqa: BLE001 - MAVSDK's TelemetryError: a rate is a wish here
+                pass
 
     @property
     def local_frame(self) -> bool:
@@ -197,14 +212,28 @@ class Flight:
 
     # --- commands ----------------------------------------------------------------------
 
-    def arm(self, timeout_s: float = 10.0) -> None:
-        """Arm and wait until the heartbeat says armed."""
+    def arm(self, timeout_s: float = 10.0, on_wait: Callable[[str], None] | None = None) -> None:
+        """Arm and wait until the heartbeat says armed. A refusal is asked again every ARM_RETRY_S until
+        `timeout_s` (an autopilot whose estimator is still settling: ArduPilot SITL for about 38 s after it
+        starts); `on_wait` hears the first refusal and the autopilot's words for it."""
         _check_timeout(timeout_s)
         deadline = time.monotonic() + timeout_s
         action, telemetry = self._link()
         if telemetry.armed():
             return
-        self._act("arm", action.arm)
+        told = False
+        while True:
+            try:
+                self._act("arm", action.arm)
+                break
+            except MissionError as exc:
+                why = f"{exc}" + (f" ({self.status_text})" if self.status_text else "")
+                if "refused" not in str(exc) or time.monotonic() + ARM_RETRY_S >= deadline:
+                    raise MissionError(why) from None
+                if on_wait is not None and not told:
+                    on_wait(why)
+                    told = True
+                time.sleep(ARM_RETRY_S)
         self._wait(telemetry.armed, deadline, lambda: f"vehicle did not report armed within {timeout_s:g} s")
 
     def takeoff(self, alt_m: float, timeout_s: float = 60.0) -> None:

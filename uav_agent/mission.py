@@ -42,6 +42,8 @@ QUERY_TIMEOUT_S = 10.0
 CAMERA_TIMEOUT_S = 30.0    # a 12 MP image rendered on a loaded machine, or sent over a slow link
 ABORT_LAND_TIMEOUT_S = 60.0
 OBSERVER_WAIT_S = 5.0      # for the recorders the UAV was told of (MissionConfig.observers); then it goes on
+# An autopilot may refuse to arm while it gets ready (ArduPilot SITL: about 38 s after it starts).
+ARM_WAIT_S = 60.0
 # A heading further than this from north after the first goto: the autopilot does not fly a goto's yaw.
 HEADING_TOLERANCE_DEG = 3.0
 LEVEL_TILT_DEG = 0.6       # a shutter (survey, fresh look, closer look) waits for the body, and its camera, this level ...
@@ -481,7 +483,8 @@ class Mission:
         from .survey import path_length, survey_poses
 
         self._status("takeoff", message=f"arming and climbing over MAVLink ({self.cfg.mavlink_url})")
-        self.flight.arm()
+        self.flight.arm(ARM_WAIT_S, on_wait=lambda why: self.progress.phase(
+            "takeoff", f"the autopilot is not ready to arm yet, asking again: {why}"))
         self.uav["armed"] = True
         first = self._camera
         poses = self._poses = survey_poses(self.info.width, self.info.height, self.info.cell_size_m, first,

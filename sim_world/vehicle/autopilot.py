@@ -51,8 +51,10 @@ class Autopilot:
 
     def __init__(self, lock: threading.RLock, journal: Journal, dynamics: Dynamics, params: Params,
                  offboard: Offboard, battery: Battery, datalink: Datalink, mission: Mission, cruise_speed_m_s: float,
-                 estimator: Estimator | None = None, payload: Payload | None = None, gps: bool = True):
+                 estimator: Estimator | None = None, payload: Payload | None = None, gps: bool = True,
+                 ready_after_s: float = 0.0):
         self._lock = lock
+        self._ready_after_s = ready_after_s
         self._estimator = estimator
         self._payload = payload
         self._gps = gps
@@ -152,6 +154,9 @@ class Autopilot:
                     return mavlink.MAV_RESULT_ACCEPTED
                 if airborne and not force:
                     return self._refuse("Arming denied: the vehicle is in the air")
+                settling = self._ready_after_s - self._dynamics.sim_time
+                if settling > 0 and not force:
+                    return self._refuse(f"Arming denied: estimator not ready ({settling:.0f} s)")
                 low = None if force else self._preflight_battery()
                 if low is not None:
                     return self._refuse(f"Arming denied: {low}")

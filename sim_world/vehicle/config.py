@@ -54,6 +54,10 @@ class VehicleConfig:
     bind_host: str = "127.0.0.1"
     hover_wobble_deg: float = 0.0  # amplitude of the roll/pitch wobble in the air (see dynamics.Wobble)
     heading_deg: float = 0.0       # where the vehicle faces when it boots (a drone set down any way round)
+    # Streams nothing but its heartbeat until asked (SET_MESSAGE_INTERVAL), as ArduPilot with its SRn_ rates at 0
+    streams_until_asked: bool = False
+    # Arming is refused this many simulated seconds after boot (an estimator settling; ArduPilot SITL takes ~38 s)
+    ready_after_s: float = 0.0
     seed: int = 0                  # of the wobble and the estimator's noise
     # MPC_ACC_HOR / MPC_ACC_UP_MAX / MPC_ACC_DOWN_MAX / MPC_JERK_AUTO (see dynamics.step_limited)
     max_accel_m_s2: float = 5.0
@@ -78,6 +82,8 @@ class VehicleConfig:
         if not (math.isfinite(self.home_alt_m) and math.isfinite(self.disarm_after_land_s)
                 and self.disarm_after_land_s >= 0):
             raise MissionError("vehicle home_alt_m and disarm_after_land_s must be finite (the latter >= 0)")
+        if not (math.isfinite(self.ready_after_s) and 0 <= self.ready_after_s <= 3600):
+            raise MissionError(f"vehicle ready_after_s must be in [0, 3600], got {self.ready_after_s}")
         if not (math.isfinite(self.heading_deg) and -360 <= self.heading_deg <= 360):
             raise MissionError(f"vehicle heading_deg must be in [-360, 360], got {self.heading_deg}")
         if not (math.isfinite(self.hover_wobble_deg) and 0 <= self.hover_wobble_deg <= 30):

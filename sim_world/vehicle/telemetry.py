@@ -95,8 +95,10 @@ class Telemetry:
         }
         self._default_rates_hz = {mid: hz for mid, hz in self._default_rates_hz.items() if mid in self._builders}
         # link name -> message id -> period in wall seconds; SET_MESSAGE_INTERVAL changes its own link's
+        quiet = {mavlink.MAVLINK_MSG_ID_HEARTBEAT} if config.streams_until_asked else self._default_rates_hz
         self._streams: dict[str, dict[int, float]] = {
-            ch.name: {mid: 1.0 / hz for mid, hz in self._default_rates_hz.items()} for ch in link.channels}
+            ch.name: {mid: 1.0 / hz for mid, hz in self._default_rates_hz.items() if mid in quiet}
+            for ch in link.channels}
 
     def restart_clock(self) -> None:
         """Time since boot (in the messages that carry it) counts from now."""

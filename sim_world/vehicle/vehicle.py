@@ -57,7 +57,8 @@ class Vehicle:
         self._missions = MissionService(self._lock, self._journal, self._link, self._mission)
         self._autopilot = Autopilot(self._lock, self._journal, self._dynamics, self._params, self._offboard,
                                     self._battery, self._datalink, self._mission, cruise_speed_m_s=min(cfg.cruise_speed_m_s, cfg.max_speed_m_s),
-                                    estimator=self._estimator, payload=self._payload, gps=cfg.gps)
+                                    estimator=self._estimator, payload=self._payload, gps=cfg.gps,
+                                    ready_after_s=cfg.ready_after_s)
         self._telemetry = Telemetry(cfg, self._lock, self._journal, self._link, self._dynamics, self._autopilot,
                                     self._battery, self._mission, self._estimator)
         self._commands = Commands(cfg, self._link, self._journal, self._autopilot, self._telemetry, self._params,
