@@ -63,6 +63,8 @@ def _commanded(later: list[str]) -> list[str]:
 def test_a_return_home_commanded_during_the_climb_is_noticed_at_once_and_never_overridden(tmp_path, udp_port):
     # The issue saw an RTL from a ground station seen in 0.1 s, then the agent wait 120 s for its pose.
     def rtl(gcs) -> float:   # once the vehicle climbs through 3 m (PX4 denies a return on the ground)
+        # returning where it is, not 30 m up first: the test waits for the landing, in real time
+        gcs.mav.param_set_send(1, 1, b"RTL_RETURN_ALT", 0.0, mavutil.mavlink.MAV_PARAM_TYPE_REAL32)
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline:
             m = gcs.recv_match(type="GLOBAL_POSITION_INT", blocking=True, timeout=1)
