@@ -23,7 +23,7 @@ from .errors import MissionError
 # message then crosses threads twice more on its way between the socket and Python. For a process
 # that handles one robot's few small messages a tick, one runtime of one worker for all of them
 # (Zenoh's `handover`) cut the CPU of a lockstep tick of 50 robot processes by a fifth
-# (`uav-robots bench ticks`, README). Not for a busy process: the one worker also carries the
+# (`uav-robots bench ticks`, docs/benchmarks.md). Not for a busy process: the one worker also carries the
 # session's sends and keep-alives, so a long callback stalls them (a pool of 250 robots lost its
 # session while the UAV's plans came in).
 ONE_RUNTIME = "(rx: (handover: app), acc: (handover: app), tx: (handover: app), net: (handover: app))"

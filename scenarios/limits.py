@@ -11,7 +11,7 @@ and 1.2 km, 1800x1800 108 images and 16.6 km, 4200x4200 567 images and 89 km
 (`uav_agent.survey.survey_poses`). The vehicle's pack lasts ~2,200 s at the 20 m/s survey speed
 (44 km; `sim_world/vehicle/params.py`), and a repair's fresh look may fly the whole survey again,
 so a mission's floor is at most 1800x1800 cells (16 times the paper's), whose survey takes 37 %
-of the pack. Planning and the world grow more slowly (README, "Limits").
+of the pack. Planning and the world grow more slowly (docs/getting-started.md, "Limits").
 """
 from __future__ import annotations
 

@@ -770,7 +770,7 @@ def add_world_arguments(p: argparse.ArgumentParser) -> None:
                    help="the camera: a preset (ideal, realistic; default "
                         f"{DEFAULT_CAMERA_PRESET}) then keys over it, on the 12 MP drone camera (4000x3000, "
                         "90 deg), e.g. realistic,blur_sigma=2 or width=1280,height=960,noise_std=2 "
-                        "(every key: README, 'The camera')")
+                        "(every key: docs/camera-and-perception.md)")
     p.add_argument("--camera-mavlink", default=None, metavar="URL",
                    help="also a MAVLink camera component (Camera Protocol v2) on a link of its own, e.g. "
                         "udpout:127.0.0.1:14560; its images served over HTTP on --mavlink-bind")

@@ -90,7 +90,7 @@ def test_a_mission_across_three_network_namespaces_over_tls(namespaces, tmp_path
         procs.append(_start(ns["world"], "sim_world", [
             "--fleet", "hosts", "--zenoh-config", str(d / "world.json5"), "--connect", f"tls/{UAV_FOR_WORLD}:{PORT}",
             "--robots", "4", "--mavlink", f"udpout:{UAV_FOR_WORLD}:{MAVLINK_PORT}", "--time-scale", "10", "--camera", "ideal",
-                # The vehicle's link leaves the host: said deliberately, as the README's recipe does.
+                # The vehicle's link leaves the host: said deliberately, as docs/deploying.md's recipe does.
                 "--mavlink-bind", "0.0.0.0"],
             tmp_path / "world.log"))
         procs.append(_start(ns["robots"], "robot_agents", [

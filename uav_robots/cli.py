@@ -27,7 +27,7 @@ def _add_run(sub) -> None:
     p.add_argument("--camera", default="", metavar="[PRESET,]K=V,...",
                    help="the world's camera: a preset (ideal, realistic) then keys over it, e.g. 'ideal', "
                         "'realistic,blur_sigma=2' or 'ideal,width=1280,height=960,noise_std=6' (default: the "
-                        "realistic 4000x3000, 90 deg camera; every key in README, 'The camera')")
+                        "realistic 4000x3000, 90 deg camera; every key in docs/camera-and-perception.md)")
     add_ground_station_arguments(p)
     p.add_argument("--autopilot", default=None, metavar="URL",
                    help="fly whatever autopilot answers on this MAVLink link (the UAV's: PX4 SITL's API port, "

@@ -2,7 +2,7 @@
 estimate's error, and the named presets `--camera` starts from.
 
 Every key, its default (the `ideal` camera: today's perfect pinhole with the true
-pose) and its meaning is in KEYS; README's camera table is written from it.
+pose) and its meaning is in KEYS; docs/camera-and-perception.md's table of keys is written from it.
 """
 from __future__ import annotations
 
