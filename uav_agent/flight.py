@@ -17,6 +17,7 @@ its estimator started, is then the floor's corner.
 """
 from __future__ import annotations
 
+import json
 import logging
 import math
 import threading
@@ -26,8 +27,9 @@ from typing import Callable
 from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk
 from mavsdk.logging import LogLevel, log_subscribe
 from mavsdk.plugins.action import Action, ActionError, ActionResult
+from mavsdk.plugins.mavlink_direct import MavlinkDirect, MavlinkMessage
 from mavsdk.plugins.offboard import Offboard, OffboardError, PositionNedYaw
-from mavsdk.plugins.telemetry import FixType, LandedState, Telemetry
+from mavsdk.plugins.telemetry import FixType, LandedState, StatusTextType, Telemetry
 
 from protocol.errors import MissionError
 from protocol.geo import check_home, geo_to_ned, ned_to_geo
@@ -39,8 +41,12 @@ SETTLED_M_S = 0.5  # a goto has arrived once the vehicle is this slow near its t
 # An autopilot that has a local position but has sent no home this long after it is indoor (PX4 on
 # vision or optical flow: no GPS, no home): the mission flies its local frame, in offboard.
 NO_HOME_S = 3.0
-OFFBOARD_START_S = 3.0
-ARM_RETRY_S = 1.0        # a refused arm is asked again this often while the autopilot gets ready   # how long the switch to offboard may take once setpoints stream
+OFFBOARD_START_S = 3.0   # how long the switch to offboard may take once setpoints stream
+ARM_RETRY_S = 1.0        # a refused arm is asked again this often while the autopilot gets ready
+MAV_CMD_DO_SET_MODE, CUSTOM_MODE_ENABLED, COPTER_GUIDED = 176, 1, 4
+# The autopilot's words worth quoting: a warning or worse, said this recently (ArduPilot says a lot at INFO,
+# "EKF3 IMU0 MAG0 in-flight yaw alignment complete", which would otherwise be quoted as an RTL's reason).
+ALERT_S = 15.0
 
 _log = logging.getLogger("uav_agent.flight")
 _log_installed = threading.Lock()
@@ -81,6 +87,7 @@ class Flight:
         self._telemetry: Telemetry | None = None
         self._home: tuple[float, float, float] | None = None
         self._offboard: Offboard | None = None   # the local frame's setpoints (no home)
+        self._alert: tuple[float, str] = (-math.inf, "")   # (when, text) of the last warning or worse
         # Why the vehicle is no longer the mission's (a failsafe's RTL or LAND, a pilot's mode, a
         # disarm), or None: checked before every command and in every wait, so the agent never
         # commands over the autopilot's own decision and notices it within a poll in any phase.
@@ -120,6 +127,7 @@ class Flight:
         self._system = system
         self._action = Action(system)
         self._telemetry = Telemetry(system)
+        self._telemetry.subscribe_status_text(self._on_status_text)
         self._wake_streams()
 
         def home_and_position():
@@ -221,20 +229,51 @@ class Flight:
         action, telemetry = self._link()
         if telemetry.armed():
             return
-        told = False
+        told: list[str] = []
+
+        def retry(exc: MissionError) -> None:
+            why = f"{exc}" + (f" ({self.status_text})" if self.status_text else "")
+            if "refused" not in str(exc) or time.monotonic() + ARM_RETRY_S >= deadline:
+                raise MissionError(why) from None
+            if on_wait is not None and not told:
+                on_wait(why)
+                told.append(why)
+            time.sleep(ARM_RETRY_S)
+
+        while self.autopilot == "ARDUPILOT" and self.flight_mode != "OFFBOARD":
+            try:
+                self._guided()
+            except MissionError as exc:
+                retry(exc)
         while True:
             try:
                 self._act("arm", action.arm)
                 break
             except MissionError as exc:
-                why = f"{exc}" + (f" ({self.status_text})" if self.status_text else "")
-                if "refused" not in str(exc) or time.monotonic() + ARM_RETRY_S >= deadline:
-                    raise MissionError(why) from None
-                if on_wait is not None and not told:
-                    on_wait(why)
-                    told = True
-                time.sleep(ARM_RETRY_S)
+                retry(exc)
         self._wait(telemetry.armed, deadline, lambda: f"vehicle did not report armed within {timeout_s:g} s")
+
+    def _guided(self) -> None:
+        """ArduCopter is flown in GUIDED, and armed in it: armed in the mode it sits in after a landing
+        (LAND), MAVSDK would first ask for its HOLD, which is Copter's BRAKE and cannot arm; armed in
+        STABILIZE, it would disarm again before the take-off. GUIDED needs a position: Copter refuses it
+        until its estimator uses the GPS (SITL: about 38 s after it starts), so the caller asks again.
+        MAVSDK names GUIDED OFFBOARD."""
+        self._check_guard()
+        fields = {"target_system": self._system.get_system_id(), "target_component": 1,
+                  "command": MAV_CMD_DO_SET_MODE, "confirmation": 0, "param1": CUSTOM_MODE_ENABLED,
+                  "param2": COPTER_GUIDED, "param3": 0, "param4": 0, "param5": 0, "param6": 0, "param7": 0}
+        message = MavlinkMessage("COMMAND_LONG", 0, 0, fields["target_system"], 1, json.dumps(fields))
+        try:
+            MavlinkDirect(self._system).send_message(message)
+        except Exception as exc:  # noqa: BLE001 - MavlinkDirectError: the link is gone
+            raise MissionError(f"could not ask the vehicle for GUIDED: {exc}") from None
+        deadline = time.monotonic() + ARM_RETRY_S
+        while time.monotonic() < deadline:
+            if self.flight_mode == "OFFBOARD":
+                return
+            time.sleep(POLL_S)
+        raise MissionError("vehicle refused GUIDED")
 
     def takeoff(self, alt_m: float, timeout_s: float = 60.0) -> None:
         """Arm if needed, take off to `alt_m` above home, wait until in the air near it."""
@@ -414,11 +453,14 @@ class Flight:
 
     @property
     def status_text(self) -> str:
-        """The autopilot's last STATUSTEXT ('' if none): a failsafe says why it took the vehicle."""
-        try:
-            return str(self._link()[1].status_text().text or "")
-        except Exception:  # noqa: BLE001 - MAVSDK raises until a first one arrived
-            return ""
+        """The autopilot's last warning or worse of the last ALERT_S ('' if none): a failsafe says why it
+        took the vehicle, a refused arm why it refused."""
+        when, text = self._alert
+        return text if time.monotonic() - when <= ALERT_S else ""
+
+    def _on_status_text(self, status, _user_data) -> None:   # MAVSDK's thread
+        if status.type.value >= StatusTextType.WARNING.value and status.text:
+            self._alert = (time.monotonic(), str(status.text))
 
     @property
     def landed(self) -> bool:

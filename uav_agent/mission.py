@@ -383,6 +383,7 @@ class Mission:
             for refused in self.flight.stream(TELEMETRY_HZ):
                 self.progress.phase("connect", f"the autopilot keeps its own rate for {refused}")
             self.uav["frame"] = "local" if self.flight.local_frame else "global"   # indoor: no home, offboard
+            self.uav["autopilot"] = self.flight.autopilot   # PX4, ARDUPILOT, ...: from its heartbeat
             self.watch = VehicleWatch(self.flight, self._vehicle_fault)
             # Every command and every wait of the flight checks it, and every wait for the fleet: the
             # autopilot's own decision wins, and it is noticed within a poll in every phase.
