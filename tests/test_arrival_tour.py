@@ -89,10 +89,11 @@ def test_a_route_through_many_stops_beats_both_simple_orders(points, tick_s):
     order = route(remaining, (0.0, 0.0), 0, tick_s, 150.0)
     assert len(order) == len(remaining) and set(order) == set(remaining)
     by_readiness = sorted(remaining, key=lambda s: (s.ready_tick, s.pose))
-    greedy, left, t = [], list(remaining), 0.0   # always the stop that can be shot soonest
+    greedy, left, t = [], list(by_readiness), 0.0   # always the stop that can be shot soonest (the nearest of equals)
     while left:
         at = greedy[-1].pose[:2] if greedy else (0.0, 0.0)
-        greedy.append(min(left, key=lambda s: max(t + math.dist(at, s.pose[:2]) / 150.0, s.ready_tick * tick_s)))
+        greedy.append(min(left, key=lambda s: (max(t + math.dist(at, s.pose[:2]) / 150.0, s.ready_tick * tick_s),
+                                               math.dist(at, s.pose[:2]))))
         t = max(t + math.dist(at, greedy[-1].pose[:2]) / 150.0, greedy[-1].ready_tick * tick_s)
         left.remove(greedy[-1])
     assert _finish(order, (0.0, 0.0), 0, tick_s, 150.0) <= min(

@@ -110,8 +110,9 @@ def _improved(stops: list[Stop], here: tuple[float, float], tick: int, tick_s: f
         return t, total   # then the earlier confirmations: less for an estimate's error to spoil
 
     greedy, at, t, left = [], here, 0.0, list(stops)
-    while left:
-        s = min(left, key=lambda s: max(t + math.dist(at, s.pose[:2]) / speed_m_s, (s.ready_tick - tick) * tick_s))
+    while left:   # the stop that can be shot soonest; of those ready alike (waiting for it), the nearest
+        s = min(left, key=lambda s: (max(t + math.dist(at, s.pose[:2]) / speed_m_s, (s.ready_tick - tick) * tick_s),
+                                     math.dist(at, s.pose[:2])))
         t = max(t + math.dist(at, s.pose[:2]) / speed_m_s, (s.ready_tick - tick) * tick_s)
         at = s.pose[:2]
         greedy.append(s)

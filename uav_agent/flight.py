@@ -233,7 +233,8 @@ class Flight:
 
         def retry(exc: MissionError) -> None:
             why = f"{exc}" + (f" ({self.status_text})" if self.status_text else "")
-            if "refused" not in str(exc) or time.monotonic() + ARM_RETRY_S >= deadline:
+            # Waiting cures an estimator that settles, never a battery (nor ArduPilot's battery settings)
+            if "refused" not in str(exc) or "battery" in why.lower() or time.monotonic() + ARM_RETRY_S >= deadline:
                 raise MissionError(why) from None
             if on_wait is not None and not told:
                 on_wait(why)

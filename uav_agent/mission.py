@@ -420,7 +420,7 @@ class Mission:
         except Exception as exc:
             # A failed mission must not leave the drone hovering armed: land it, then report the failure.
             why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            self._event("abort", [], why, "ended the mission and landed the vehicle")
+            self._event("abort", [], why, "ended the mission; " + self._abort_course())
             try:
                 self._end(False, why)   # the robots and observers hear why, not just "aborted"
             except Exception:  # noqa: BLE001 - the session may be what failed
@@ -1384,7 +1384,7 @@ class Mission:
         why = "stopped by SIGTERM" if isinstance(exc, SystemExit) else "interrupted (SIGINT)"
         held = _hold_signals()
         try:
-            self._event("abort", [], why, "ended the mission, wrote the report, landed the vehicle")
+            self._event("abort", [], why, "ended the mission, wrote the report; " + self._abort_course())
             try:
                 self._end(False, why)
             except Exception:  # noqa: BLE001 - the session may already be gone
@@ -1395,6 +1395,14 @@ class Mission:
                 self._abort_report(why, record_timeout_s=2.0)
         finally:
             _restore_signals(held)
+
+    def _abort_course(self) -> str:
+        """What becomes of the vehicle after an abort, as `_abort_landing` will do it."""
+        if self.flight is None or not self.uav["armed"] or self.uav["landed"]:
+            return "the vehicle stays on the ground"
+        if self.watch is not None and self.watch.failsafe:
+            return "the autopilot brings the vehicle down"
+        return "landing the vehicle"
 
     def _abort_landing(self, timeout_s: float = ABORT_LAND_TIMEOUT_S) -> None:
         if self.watch is not None:

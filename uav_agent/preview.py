@@ -53,6 +53,8 @@ class Previewer:
         self._latest: CameraFrame | None = None
         self._cv = threading.Condition()
         self._closed = False
+        self._cut = False                     # closed and waited for: nothing is published any more
+        self._publishing = threading.Lock()
         self._thread = threading.Thread(target=self._run, name="preview", daemon=True)
         self._thread.start()
 
@@ -70,13 +72,21 @@ class Previewer:
             if frame is None:
                 return
             try:
-                self._publish(preview_frame(frame))
+                preview = preview_frame(frame)
+                with self._publishing:
+                    if self._cut:
+                        return
+                    self._publish(preview)
             except Exception:  # noqa: BLE001 - a preview lost must never end the mission
                 pass
 
     def close(self, timeout_s: float = 2.0) -> None:
-        """Publish what is pending (the last image of a mission matters to a recorder), then stop."""
+        """Publish what is pending (the last image of a mission matters to a recorder), then stop. After
+        `timeout_s` (a loaded machine, a 12 MP decode) the pending preview is dropped: once this returns
+        nothing is published, so no frame follows the MissionEnd sent next."""
         with self._cv:
             self._closed = True
             self._cv.notify()
         self._thread.join(timeout_s)
+        with self._publishing:
+            self._cut = True
