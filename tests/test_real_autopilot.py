@@ -107,9 +107,27 @@ def _when(log: Path, pattern: str, timeout_s: float) -> None:
     pytest.fail(f"the UAV's log never said {pattern!r} within {timeout_s:g} s")
 
 
-def _failsafe_mission(tmp_path: Path, ports, params: dict[str, float], trigger) -> tuple[int, dict, float, str]:
+def _modes_until_landed(gcs, proc: subprocess.Popen, timeout_s: float) -> list[str]:
+    """ArduCopter's modes, from its heartbeats on the ground station's link, until the mission's process
+    ends and the vehicle is disarmed: a command of the UAV's over a failsafe would show as a mode."""
+    modes: list[str] = []
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        m = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=0.5)
+        if m is None or (m.get_srcSystem(), m.get_srcComponent()) != (1, 1):
+            continue
+        mode = mavutil.mode_string_v10(m)
+        if not modes or modes[-1] != mode:
+            modes.append(mode)
+        if proc.poll() is not None and not m.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED:
+            break
+    return modes
+
+
+def _failsafe_mission(tmp_path: Path, ports, params: dict[str, float], trigger) -> tuple[int, dict, float, list, str]:
     """A mission with a ground station on SERIAL2; `trigger(gcs)` once the survey takes its first image.
-    (exit code, report, seconds from the trigger to the UAV's abort, what ArduPilot's SITL printed)."""
+    (exit code, report, seconds from the trigger to the UAV's abort, the modes from the trigger until
+    the vehicle is disarmed, what the run and ArduPilot's SITL printed)."""
     uav, pose, gcs_port = ports
     with ArduCopter(tmp_path / "sitl", uav, pose, gcs_port, params=params) as sitl:
         proc = _run(tmp_path, uav, pose)
@@ -119,7 +137,8 @@ def _failsafe_mission(tmp_path: Path, ports, params: dict[str, float], trigger) 
             assert gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=30) is not None, sitl.said()[-2000:]
             _when(tmp_path / "out" / "logs" / "uav.log", r"survey: image 1/", 300)
             triggered = trigger(gcs) or time.time()
-            code, said = _finish(proc, 300)
+            modes = _modes_until_landed(gcs, proc, 300)
+            code, said = _finish(proc, 60)
         finally:
             gcs.close()
             if proc.poll() is None:
@@ -127,7 +146,7 @@ def _failsafe_mission(tmp_path: Path, ports, params: dict[str, float], trigger) 
                 proc.wait(10)
         report = json.loads((tmp_path / "out" / "report.json").read_text())
         abort = next(e for e in report["events"] if e["kind"] == "abort")
-        return code, report, abort["unix"] - triggered, said + sitl.said()
+        return code, report, abort["unix"] - triggered, modes, said + sitl.said()
 
 
 def test_arducopters_critical_battery_failsafe_wins_and_is_named(tmp_path, ports):
@@ -137,11 +156,13 @@ def test_arducopters_critical_battery_failsafe_wins_and_is_named(tmp_path, ports
     def sag(gcs):
         gcs.mav.param_set_send(1, 1, b"SIM_BATT_VOLTAGE", 10.0, mavutil.mavlink.MAV_PARAM_TYPE_REAL32)
 
-    code, report, noticed_s, said = _failsafe_mission(tmp_path, ports, params, sag)
+    code, report, noticed_s, modes, said = _failsafe_mission(tmp_path, ports, params, sag)
     assert code == 1 and report["outcome"] == "aborted", said[-3000:]
     assert "battery" in report["reason"].lower() and "RETURN_TO_LAUNCH" in report["reason"], report["reason"]
-    assert report["uav"].get("left_to_autopilot") == "RETURN_TO_LAUNCH"
+    assert report["uav"].get("left_to_autopilot") == "RETURN_TO_LAUNCH" and report["uav"]["landed"]
     assert noticed_s < 5.0, f"the failsafe was acted on {noticed_s:.1f} s after the battery sagged"
+    # GUIDED until the failsafe, then its RTL to the ground: no mode (no command) of the UAV's after it
+    assert modes[modes.index("RTL"):] == ["RTL"], modes
 
 
 def test_a_ground_stations_return_home_in_the_survey_is_noticed_at_once_and_never_overridden(tmp_path, ports):
@@ -149,7 +170,8 @@ def test_a_ground_stations_return_home_in_the_survey_is_noticed_at_once_and_neve
         gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0, 0, 0, 0, 0, 0)
         return time.time()
 
-    code, report, noticed_s, said = _failsafe_mission(tmp_path, ports, {}, rtl)
+    code, report, noticed_s, modes, said = _failsafe_mission(tmp_path, ports, {}, rtl)
     assert code == 1 and report["outcome"] == "aborted", said[-3000:]
     assert "RETURN_TO_LAUNCH" in report["reason"], report["reason"]
     assert noticed_s < 2.0, f"the RTL was acted on {noticed_s:.1f} s after it was commanded"
+    assert modes[modes.index("RTL"):] == ["RTL"], modes
