@@ -16,6 +16,9 @@ import pytest
 from uav_agent.planning.aot import missing_tools
 from uav_agent.planning.jit import kind
 
+# The module's fixture builds the planners ahead of time (about a minute): out of the developer lane.
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 
 needs_compiler = pytest.mark.skipif(missing_tools() is not None,
@@ -81,6 +84,7 @@ import json, sys
 import numpy as np
 from uav_agent.planning import jit
 from uav_agent.planning.distances import _bfs, grid_graph
+
 free = np.ones((5, 7), dtype=bool); free[2, 1:6] = False
 g = grid_graph(free, 4)
 def field(dtype):
@@ -111,6 +115,7 @@ def _run(code: str, env: dict[str, str]) -> tuple[dict, str]:
     return json.loads(done.stdout.strip().splitlines()[-1]), done.stderr
 
 
+@pytest.mark.slow
 @needs_compiler
 def test_a_build_plans_without_numba_and_as_the_jit_does(build):
     again = subprocess.run([sys.executable, "-m", "uav_robots", "build"], cwd=ROOT, env=_env(build),

@@ -89,6 +89,7 @@ def test_the_floor_stays_where_the_first_home_put_it_and_poses_come_at_their_ins
         check_pose_url("udpin:0.0.0.0:14550", "127.0.0.1")
 
 
+@pytest.mark.slow
 def test_the_followed_pose_is_the_vehicles_at_each_instant_in_flight():
     """Our vehicle sends its telemetry on a third link; the follower asks it for 50 Hz and its pose at
     instants already past matches what the vehicle itself was at each, on the ground, climbing, flying
@@ -163,6 +164,7 @@ def _stop(proc: subprocess.Popen) -> None:
             proc.wait()
 
 
+@pytest.mark.slow
 def test_a_whole_run_flies_an_external_autopilot_and_renders_from_its_pose(tmp_path):
     """`uav-robots vehicle` started on its own, as a SITL binary; `uav-robots run --autopilot
     --autopilot-pose` starts no vehicle, the UAV flies that one and the world's camera follows it over
@@ -204,6 +206,7 @@ def test_a_whole_run_flies_an_external_autopilot_and_renders_from_its_pose(tmp_p
     assert "vehicle ready" in said and "takeoff" in said and "landed" in said and "vehicle: stopped" in said
 
 
+@pytest.mark.slow
 def test_an_indoor_vehicle_without_gps_flies_the_mission_in_its_local_frame(tmp_path):
     """`--vehicle-preset indoor`: no GPS, no home, no global position (PX4 on vision or optical flow). The
     UAV finds no home, flies the autopilot's local frame with offboard position setpoints, and the world

@@ -5,6 +5,8 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 BENCH_TIMEOUT_S = 300
 
 
@@ -17,6 +19,7 @@ def bench(tmp_path, *args: str) -> tuple[subprocess.CompletedProcess, str, dict]
     return done, table, data
 
 
+@pytest.mark.slow
 def test_the_default_mission_twice_gives_two_rows_from_their_reports(tmp_path):
     done, table, data = bench(tmp_path, "--runs", "2", "--map", "default", "--robots", "0", "--target-s", "10")
     assert done.returncode == 0, done.stdout + done.stderr

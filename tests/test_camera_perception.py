@@ -155,6 +155,7 @@ def test_mid_size_warehouse_survey_with_noise():
     assert_matches(perceive(frames, free.shape[1], free.shape[0], CELL), scene)
 
 
+@pytest.mark.slow
 def test_frames_measured_at_once_on_several_threads_read_as_one_at_a_time():
     # The survey measures two frames at once, and each frame's goal pads are split beside its
     # registration on a third thread: nothing may leak from one frame's reading into another's.
@@ -203,6 +204,7 @@ def test_paper_warehouse_450_with_50_robots_from_a_survey():
     assert_matches(perceive(frames, 450, 450, CELL), scene)
 
 
+@pytest.mark.slow
 @given(w=st.integers(4, 14), h=st.integers(4, 12), density=st.floats(0.0, 0.3), robots=st.integers(1, 6),
        seed=st.integers(0, 10_000), yaw=st.floats(-math.pi, math.pi), ids=st.integers(1, 997))
 @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])

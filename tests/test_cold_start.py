@@ -56,6 +56,7 @@ def compiled():
             warm_up("lacam", 4)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,free,starts,goals,connectivity,seed", instances(), ids=lambda v: v if isinstance(v, str) else "")
 def test_interpreted_plans_are_the_compiled_plans(compiled, name, free, starts, goals, connectivity, seed):
     kw = dict(planner="lacam", assign="optimal", connectivity=connectivity, time_limit=60.0, fallback=True, seed=seed)

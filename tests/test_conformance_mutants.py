@@ -24,6 +24,8 @@ from conformance import mutants
 from conformance.rules import DOC, RULES, SUITES, markdown, rules, since_of_test
 from suites import run_suite
 
+pytestmark = pytest.mark.mutation
+
 REPO = Path(__file__).resolve().parents[1]
 PY = shlex.quote(sys.executable)
 ROBOT_ARGS = "--fleet {fleet} --connect {endpoint}"

@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from suites import outcome, run_suite
 
 REPO = Path(__file__).resolve().parents[1]
@@ -15,6 +17,7 @@ def _suite(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     return run_suite("conformance/test_robot_conformance.py", *args, timeout=timeout)
 
 
+@pytest.mark.slow
 def test_our_robot_conforms():
     run = _suite()
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
@@ -23,6 +26,7 @@ def test_our_robot_conforms():
     assert "the implementation keeps protocol 2 (stated in its first PlanAck): held to every robot rule" in run.stdout
 
 
+@pytest.mark.slow
 def test_our_robot_conforms_with_an_explicit_command_and_id():
     cmd = f"{shlex.quote(sys.executable)} -m robot_agents --ids {{id}} --fleet {{fleet}} --connect {{endpoint}}"
     run = _suite("--robot-cmd", cmd, "--robot-id", "42", "-k", "follow_the_plan")
@@ -30,6 +34,7 @@ def test_our_robot_conforms_with_an_explicit_command_and_id():
     assert "1 passed" in run.stdout
 
 
+@pytest.mark.slow
 def test_a_silent_robot_fails_the_suite():
     silent = f"{shlex.quote(sys.executable)} -c \"import time; time.sleep(60)\""
     run = _suite("--robot-cmd", silent, "--robot-timeout", "1", "-k", "liveliness or valid_plan")
@@ -38,6 +43,7 @@ def test_a_silent_robot_fails_the_suite():
     assert "no liveliness token" in run.stdout
 
 
+@pytest.mark.slow
 def test_a_robot_that_acks_nothing_fails_the_suite(tmp_path):
     # A robot that comes alive but ignores every message: the liveliness test passes, the rest fail.
     mute = tmp_path / "mute_robot.py"

@@ -60,6 +60,7 @@ def _check_report(report):
     assert uav["armed"] and uav["landed"] and uav["max_altitude_m"] > 1.0
 
 
+@pytest.mark.slow
 def test_default_mission(tmp_path):
     t0 = time.monotonic()
     res = _run(["run", "--out", str(tmp_path)], timeout=180)
@@ -87,6 +88,7 @@ def test_default_mission(tmp_path):
     print(f"default mission wall time {time.monotonic() - t0:.1f} s")
 
 
+@pytest.mark.slow
 def test_first_run_does_not_wait_for_the_compile(tmp_path):
     """A fresh clone (an empty numba cache): the kernels compile in a process of their own, the
     default mission is planned by the same planners interpreted, and the compile stops with it."""
@@ -104,6 +106,7 @@ def test_first_run_does_not_wait_for_the_compile(tmp_path):
     assert report["plan"]["metrics"]["sum_of_costs"] == report["plan"]["metrics"]["lower_bound"]
 
 
+@pytest.mark.slow
 def test_first_run_repairs_without_waiting_for_the_compile(tmp_path):
     """A robot lost during a fresh clone's first run: the repair is planned by the planners
     interpreted too, as the first plan was; planned in the UAV's own process, numba's compile held
@@ -119,6 +122,7 @@ def test_first_run_repairs_without_waiting_for_the_compile(tmp_path):
     assert sum(report["verified"].values()) == 7 and not report["verified"]["3"]
 
 
+@pytest.mark.slow
 def test_json_and_quiet_for_scripts(tmp_path):
     res = _run(["run", *IDEAL, "--json"], timeout=180)
     assert res.returncode == 0, res.stderr[-2000:]
@@ -134,6 +138,7 @@ def test_json_and_quiet_for_scripts(tmp_path):
     assert (tmp_path / "report.json").stat().st_size < (tmp_path / "details.json").stat().st_size + 20_000
 
 
+@pytest.mark.slow
 def test_noisy_camera_needs_a_closer_look(tmp_path):
     """Noise, blur and uneven light make some markers unreadable from survey height: the UAV flies lower."""
     res = _run(["run", "--map", "warehouse:blocks_x=4,blocks_y=12", "--robots", "30", "--out", str(tmp_path),
@@ -158,6 +163,7 @@ def _fleet_processes(fleet):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("how", ["sigint", "kill-world"])
 def test_interrupt_or_failing_part_stops_everything(how):
     """Ctrl-C, or a part dying, stops the whole mission within seconds and leaves no process behind."""

@@ -72,6 +72,7 @@ def test_plan_movingai_says_in_one_line_what_is_wrong():
         "plan_movingai: no shipped scenario 'random-99' for the map 'warehouse-10-20-10-2-1' (see scenarios/data/movingai)"]
 
 
+@pytest.mark.slow
 def test_the_minimal_robot_keeps_the_core_rules_of_the_conformance_suite():
     cmd = f"{shlex.quote(sys.executable)} examples/minimal_robot.py --id {{id}} --fleet {{fleet}} --connect {{endpoint}}"
     out = succeeded(run([sys.executable, "-m", "uav_robots", "conformance", "robot", "--cmd", cmd, "-k", CORE_RULES],
@@ -81,6 +82,7 @@ def test_the_minimal_robot_keeps_the_core_rules_of_the_conformance_suite():
     assert "keeps protocol 2 (stated in its first PlanAck)" in out
 
 
+@pytest.mark.slow
 def test_minimal_robots_complete_a_real_mission_in_place_of_ours():
     out = succeeded(example("minimal_robot.py", timeout=150))
     assert re.search(r"^mission COMPLETED: 3/3 robots verified on their goals by the camera in \d+ ticks, collisions 0$",
@@ -88,6 +90,7 @@ def test_minimal_robots_complete_a_real_mission_in_place_of_ours():
     assert "3 minimal robots (examples/minimal_robot.py) completed a mission of our UAV and world" in out
 
 
+@pytest.mark.slow
 def test_fly_vehicle_mavsdk_takes_off_flies_and_lands():
     out = succeeded(example("fly_vehicle_mavsdk.py"))
     assert re.search(r"^connected: autopilot 1 \(PX4\), home 47\.397742 8\.545594", out, re.M), out
@@ -110,6 +113,7 @@ def test_new_planner_plans_what_the_validator_accepts_and_shortest_paths_do_not(
     assert "the new planner's plan passed the independent validator" in out
 
 
+@pytest.mark.slow
 def test_observer_beside_a_run_sees_its_ticks_states_flags_and_end():
     mission = subprocess.Popen([sys.executable, "-m", "uav_robots", "run", "--robots", "3", "--camera", "ideal",
                                 "--timeout", "120"], cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
@@ -140,6 +144,7 @@ def test_observer_beside_a_run_sees_its_ticks_states_flags_and_end():
     assert out.rstrip().endswith("mission end: completed")
 
 
+@pytest.mark.slow
 def test_observer_alone_starts_a_mission_and_watches_it():
     out = succeeded(example("observe_fleet.py", timeout=150))
     saw = re.search(r"^observer: saw (\d+) ticks, (\d+) robot states, 3 done flags$", out, re.M)

@@ -1,5 +1,7 @@
 """The UAV's fleet link refuses garbage and forged messages and keeps its state."""
 
+import pytest
+
 from protocol.keys import Keys
 from protocol.messages import Done, PlanAck, RobotState, encode
 from protocol.transport import MemoryBus, MemoryTransport
@@ -29,6 +31,7 @@ def test_garbage_and_forgery_are_refused_state_kept():
     link.close()
 
 
+@pytest.mark.slow
 def test_a_fleet_still_coming_up_extends_the_start_up_wait_a_stopped_one_does_not():
     import threading
     import time

@@ -72,6 +72,7 @@ def test_connect_arm_takeoff_goto_land(link):
     assert vehicle.bad_frames == 0  # MAVSDK sends nothing the vehicle cannot parse
 
 
+@pytest.mark.slow
 def test_an_autopilot_that_streams_nothing_until_asked_and_arms_late_is_connected_and_flown():
     """ArduPilot streams nothing but its heartbeat until a link asks (its SRn_ rates at 0), and MAVSDK asks
     for nothing: without asking, `connect` would wait for a home and a position that never come. It also
@@ -127,6 +128,7 @@ def test_refused_command_is_a_mission_error(link):
         flight.goto(5.0, 5.0, 10.0, timeout_s=5)  # disarmed: the vehicle denies DO_REPOSITION
 
 
+@pytest.mark.slow
 def test_lost_link_ends_a_wait_early(link):
     vehicle, flight = link
     flight.connect(timeout_s=10)

@@ -128,6 +128,7 @@ def test_upload_download_clear_and_refusals(vehicle, gcs):
     said(gcs, "no mission uploaded")
 
 
+@pytest.mark.slow
 def test_upload_requests_again_and_times_out(vehicle, gcs):
     gcs.send(gcs.mav.mission_count_encode(1, 1, 2, m.MAV_MISSION_TYPE_MISSION))
     first = gcs.recv("MISSION_REQUEST_INT")
@@ -199,6 +200,7 @@ def test_rtl_climbs_flies_home_lands_and_disarms(vehicle, gcs):
 
 # --- battery -----------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_battery_drains_and_a_critical_battery_brings_it_back(vehicle, gcs):
     full = gcs.recv("BATTERY_STATUS")
     cells = int(vehicle.param("BAT1_N_CELLS"))
@@ -221,6 +223,7 @@ def test_battery_drains_and_a_critical_battery_brings_it_back(vehicle, gcs):
 
 # --- geofence ----------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_geofence_refuses_far_targets_clamps_offboard_and_a_breach_returns(vehicle, gcs):
     assert set_param(gcs, "GF_MAX_HOR_DIST", 30.0) == 30.0
     airborne_at(gcs, vehicle, 5.0)
@@ -257,6 +260,7 @@ def test_geofence_refuses_far_targets_clamps_offboard_and_a_breach_returns(vehic
 
 # --- datalink loss -------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_datalink_loss_holds_then_returns(vehicle, gcs):
     for name, value in (("COM_DL_LOSS_T", 1.0), ("COM_FAIL_ACT_T", 1.0), ("NAV_DLL_ACT", 2.0)):
         assert set_param(gcs, name, value) == value
@@ -274,6 +278,7 @@ def test_datalink_loss_holds_then_returns(vehicle, gcs):
     assert math.hypot(*vehicle.pose()[:2]) < 0.35
 
 
+@pytest.mark.slow
 def test_mavsdk_heartbeats_keep_the_datalink(udp_port):
     """The UAV agent's MAVSDK link sends heartbeats: a healthy flight never trips the failsafe."""
     from uav_agent.flight import Flight
@@ -349,6 +354,7 @@ def stop(proc: subprocess.Popen) -> None:
             proc.wait()
 
 
+@pytest.mark.slow
 def test_world_vehicle_flies_a_mission_uploaded_by_a_ground_station():
     gcs_port = free_port()
     gcs = Client(None, listen=gcs_port, heartbeat_hz=2.0)  # like QGroundControl on 14550
@@ -382,6 +388,7 @@ def test_world_vehicle_flies_a_mission_uploaded_by_a_ground_station():
         stop(world)
 
 
+@pytest.mark.slow
 def test_run_with_a_signed_ground_station_completes_while_it_watches(tmp_path):
     key_file = tmp_path / "key.hex"
     key_file.write_text(KEY.hex() + "\n")  # as `openssl rand -hex 32` writes it

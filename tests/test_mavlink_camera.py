@@ -133,6 +133,7 @@ def test_a_ground_station_finds_the_camera_and_takes_an_image(tmp_path):
             gcs.close()
 
 
+@pytest.mark.slow
 def test_mavsdks_camera_plugin_takes_a_photo(tmp_path, monkeypatch):
     """MAVSDK (what real drone apps use) lists the camera, reads its definition and gets its captures."""
     import time
@@ -202,6 +203,7 @@ def test_the_mavlink_source_gives_the_frame_the_world_gives(tmp_path):
             client.close()
 
 
+@pytest.mark.slow
 def test_the_video_stream_plays_and_gives_frames_with_the_telemetry_pose(tmp_path):
     """A receiver finds the stream as a ground station does (VIDEO_STREAM_INFORMATION) and decodes it."""
     pytest.importorskip("av", reason="the video stream needs PyAV (pip install 'uav-robots[video]')")
@@ -236,6 +238,7 @@ def test_bad_camera_options_are_one_line_and_exit_2(argv, needle):
     assert len(lines) == 1 and needle in lines[0] and "Traceback" not in res.stderr
 
 
+@pytest.mark.slow
 def test_a_whole_mission_with_the_mavlink_camera_source(tmp_path):
     """The UAV triggers every image over MAVLink and fetches it over HTTP, on the default floor and camera."""
     res = subprocess.run([sys.executable, "-m", "uav_robots", "run", "--camera-source", "mavlink", "--out", str(tmp_path),

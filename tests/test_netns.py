@@ -72,6 +72,7 @@ def _start(ns: str, module: str, args: list[str], log: Path) -> subprocess.Popen
         out.close()
 
 
+@pytest.mark.slow
 def test_a_mission_across_three_network_namespaces_over_tls(namespaces, tmp_path):
     ns, d, out = namespaces, tmp_path / "secure", tmp_path / "out"
     init = subprocess.run([sys.executable, "-m", "uav_robots", "secure", "init", str(d), "--robots", "4",

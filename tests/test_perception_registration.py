@@ -384,6 +384,7 @@ def test_an_arrival_image_of_a_region_shows_its_goals_and_enough_landmarks_and_r
     assert region_for([], calibration, pose, CELL, marks, margin, (450, 450)) is None
 
 
+@pytest.mark.slow
 def test_robots_parked_on_their_goals_are_read_through_the_target_degradation():
     # The verification's look sees robots on their goals: each marker inside its pad's green frame,
     # which keeps the cell's contrast under the marker-like test. At the target degradation the

@@ -50,6 +50,7 @@ def test_plan_subprocess_end_to_end(small_files):
     assert plan.planner == "lacam" and np.array_equal(plan.free, free)
 
 
+@pytest.mark.slow
 def test_plan_on_a_fresh_clone_does_not_wait_for_the_compile(tmp_path):
     """An empty numba cache (and so no build): the planners run interpreted and give the plan the
     compiled kernels give, 50 robots on the 450 warehouse, without compiling first."""
@@ -166,6 +167,7 @@ def paper_data(tmp_path):
     return tmp_path / "data"
 
 
+@pytest.mark.slow
 def test_bench_paper_subprocess(paper_data, tmp_path):
     out = tmp_path / "out"
     p = run_cli("bench", "paper", "--sizes", "3,5", "--repeat", "1", "--data", str(paper_data),
@@ -206,6 +208,7 @@ def test_bench_movingai_subprocess(tmp_path):
     assert {r["scen"] for r in runs} == {"random-1", "random-2"}
 
 
+@pytest.mark.slow
 def test_bench_command_times_whole_processes(paper_data, tmp_path):
     out = tmp_path / "out"
     p = run_cli("bench", "command", "--sizes", "3,5", "--repeat", "2", "--data", str(paper_data),

@@ -113,6 +113,7 @@ def _validator(cls):
 ids = [c.__name__ for c in TYPES]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cls", TYPES, ids=ids)
 @FUZZ
 @given(data=st.data())
@@ -123,6 +124,7 @@ def test_round_trip(cls, data):
     assert encode(decode(wire, cls)) == wire
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cls", TYPES, ids=ids)
 @FUZZ
 @given(data=st.binary(max_size=400))
@@ -130,6 +132,7 @@ def test_random_bytes(cls, data):
     decodes_or_refuses(data, cls)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cls", TYPES, ids=ids)
 @settings(FUZZ, max_examples=300)
 @given(data=st.data())
@@ -137,6 +140,7 @@ def test_mutated_encodings(cls, data):
     decodes_or_refuses(data.draw(mutated(cls)), cls)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cls", TYPES, ids=ids)
 @FUZZ
 @given(data=st.data())

@@ -23,7 +23,7 @@ from pymavlink import mavutil
 from ardupilot_sitl import ArduCopter, binary
 from uav_agent.flight import Flight
 
-pytestmark = pytest.mark.timeout(900)
+pytestmark = [pytest.mark.timeout(900), pytest.mark.slow]
 
 # ArduPilot arms about 38 s after it starts (its estimator and GPS settling), and flies at its own pace.
 ARM_S = 120.0

@@ -106,6 +106,7 @@ def _kinds(report: dict) -> dict[str, list[int]]:
     return out
 
 
+@pytest.mark.slow
 def test_sigkill_one_robot_mid_execution(tmp_path):
     run = Run(tmp_path / "out", "--robots", "20", "--tick-rate", "10")
     run.wait_for_tick(3)
@@ -123,6 +124,7 @@ def test_sigkill_one_robot_mid_execution(tmp_path):
     assert report["outcome"] == ("completed" if code == 0 else "degraded")
 
 
+@pytest.mark.slow
 def test_sigstop_a_robot_for_3_s(tmp_path):
     run = Run(tmp_path / "out", "--robots", "12", "--tick-rate", "4")
     run.wait_for_tick(2)
@@ -136,6 +138,7 @@ def test_sigstop_a_robot_for_3_s(tmp_path):
     _check_truth(report, set())
 
 
+@pytest.mark.slow
 def test_a_robot_that_claims_done_and_never_moves_is_not_believed(tmp_path):
     run = Run(tmp_path / "out", "--robots", "8", "--fault", "liar:2", "--tick-timeout", "4")
     code, report = run.finish()
@@ -147,6 +150,7 @@ def test_a_robot_that_claims_done_and_never_moves_is_not_believed(tmp_path):
     assert any("mission DEGRADED" in line for line in run.lines)
 
 
+@pytest.mark.slow
 def test_a_forged_done_changes_nothing(tmp_path):
     # Robot 1 stops for good at tick 1; a stranger raises Done for it on its own key, again and again.
     run = Run(tmp_path / "out", "--robots", "8", "--fault", "stall:1@1:100000", "--tick-timeout", "4")
@@ -176,6 +180,7 @@ def test_a_forged_done_changes_nothing(tmp_path):
     _check_truth(report, {1})
 
 
+@pytest.mark.slow
 def test_a_crashing_robot_by_fault_is_replanned_around(tmp_path):
     run = Run(tmp_path / "out", "--robots", "12", "--fault", "crash:3@2", "--robots-per-process", "4")
     code, report = run.finish()
@@ -185,6 +190,7 @@ def test_a_crashing_robot_by_fault_is_replanned_around(tmp_path):
     _check_truth(report, {3})
 
 
+@pytest.mark.slow
 def test_an_aborted_run_still_writes_its_report(tmp_path):
     # Every robot stalls from tick 1 for good: nobody is left to plan for, the mission aborts.
     faults = [a for r in range(3) for a in ("--fault", f"stall:{r}@1:100000")]
@@ -222,6 +228,7 @@ def _vehicle_ports(run: Run) -> list[int]:
     raise AssertionError("no vehicle process")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command, words", [
     ("disarm", "disarmed by someone else"),
     ("land", "LAND mode"),
@@ -256,6 +263,7 @@ def test_a_ground_station_takes_the_vehicle(tmp_path, udp_port, command, words):
         assert report["uav"]["left_to_autopilot"] in ("LAND", "RETURN_TO_LAUNCH"), report["uav"]
 
 
+@pytest.mark.slow
 def test_a_strangers_disarm_on_the_flight_link_is_refused_and_the_mission_goes_on(tmp_path):
     """The issue's crash: one unsigned force-disarm datagram from another local process, on the link the
     UAV flies by. That link answers its companion only: the datagram is refused, counted and said."""
@@ -278,6 +286,7 @@ def test_a_strangers_disarm_on_the_flight_link_is_refused_and_the_mission_goes_o
     assert "Flight link: refused system 250" in said and "Pose link: refused system 251" in said, said[-2000:]
 
 
+@pytest.mark.slow
 def test_slips_are_seen_and_repaired(tmp_path):
     run = Run(tmp_path / "out", "--robots", "30", "--map", "warehouse:blocks_x=4,blocks_y=6",
               "--fault", "slip:0.02", "--seed", "3", "--monitor-every", "5")
@@ -299,6 +308,7 @@ def test_fault_specs_are_checked_before_anything_starts():
         assert len(run.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ticks", [1, 5, 20])
 def test_a_robot_that_stalls_and_comes_back_rejoins(tmp_path, ticks):
     # Robot 5 neither moves nor reports from tick 3 for `ticks` ticks, then goes on. It used to be
@@ -314,6 +324,7 @@ def test_a_robot_that_stalls_and_comes_back_rejoins(tmp_path, ticks):
     _check_truth(report, set())
 
 
+@pytest.mark.slow
 def test_a_robot_that_keeps_deviating_is_quarantined_and_the_rest_finish(tmp_path):
     # From tick 2 every move of robot 10 ends elsewhere (a broken drive: the world's skid fault).
     # It used to be replanned until the 10-repair limit aborted everyone.
@@ -328,6 +339,7 @@ def test_a_robot_that_keeps_deviating_is_quarantined_and_the_rest_finish(tmp_pat
     _check_truth(report, {10})
 
 
+@pytest.mark.slow
 def test_many_faults_at_once_end_completed_or_degraded(tmp_path):
     # A crash, a long stall, a liar and 5 % slips together used to exhaust the 10-repair limit and
     # abort with most robots on their goals. Robots that can finish do; no collision.
@@ -340,6 +352,7 @@ def test_many_faults_at_once_end_completed_or_degraded(tmp_path):
     _check_truth(report, set(report["lost"]))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig, words", [(signal.SIGTERM, "stopped by SIGTERM"), (signal.SIGINT, "interrupted (SIGINT)")])
 def test_a_uav_stopped_mid_execution_writes_its_report_and_lands(tmp_path, sig, words):
     run = Run(tmp_path / "out", "--robots", "12", "--tick-rate", "3")
@@ -357,6 +370,7 @@ def test_a_uav_stopped_mid_execution_writes_its_report_and_lands(tmp_path, sig, 
     assert any(e["kind"] == "abort" and e["what"] == words for e in report["events"])
 
 
+@pytest.mark.slow
 def test_a_frozen_robot_whose_states_are_forged_is_caught_by_the_camera(tmp_path):
     # Robot 4 freezes (SIGSTOP) at tick 2; a stranger on the open fleet puts, for every tick, the state
     # its plan calls for, so the tick barrier never calls it stalled. Only the camera can tell: its

@@ -5,6 +5,7 @@ import sys
 import pytest
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("args, words", [
     (["--seed", "-1"], "--seed must be"),
     (["--robots", "0"], "--robots must be"),

@@ -97,6 +97,7 @@ def test_init_writes_private_keys_and_configs_zenoh_accepts(tmp_path):
     assert again.returncode == 2 and "not an empty directory" in again.stderr and "Traceback" not in again.stderr
 
 
+@pytest.mark.slow
 def test_a_client_without_a_certificate_cannot_join(fleet_dir):
     d, fleet = fleet_dir
     with _open(d, "uav") as hub:
@@ -213,6 +214,7 @@ def _run(args: list[str], timeout: float = 240) -> subprocess.Popen:
                             stderr=subprocess.PIPE, text=True, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)})
 
 
+@pytest.mark.slow
 def test_a_secure_mission_completes_while_a_member_forges_everything(tmp_path):
     """The whole default mission over TLS with ACL, while robot 0's identity floods forged messages."""
     out = tmp_path / "out"
@@ -258,6 +260,7 @@ def test_a_secure_mission_completes_while_a_member_forges_everything(tmp_path):
     assert "no recording" not in stderr and (out / "mission.mcap").stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_run_secure_uses_a_secure_init_directory_and_cleans_a_temporary_one(tmp_path):
     d = tmp_path / "made"
     init = subprocess.run([sys.executable, "-m", "uav_robots", "secure", "init", str(d), "--robots", "3",
@@ -279,6 +282,7 @@ def test_run_secure_uses_a_secure_init_directory_and_cleans_a_temporary_one(tmp_
     assert set(tmp.glob("uav-robots-secure-*")) <= before
 
 
+@pytest.mark.slow
 def test_the_cost_bench_runs_a_lockstep_barrier_both_ways(tmp_path):
     """`uav-robots bench secure`'s transport part: ticks out and states back through the ACL'd router."""
     from uav_robots.secure_bench import barrier_rate

@@ -93,6 +93,7 @@ def _logs(out: Path) -> set[str]:
 EVERY_LOG = {"uav.log", "world.log", "vehicle.log", "robots-0-0.log", "robots-1-1.log", "robots-2-2.log", "robots-3-3.log"}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("how, code", [("kill-world", 1), ("kill-uav", 1), ("sigterm", 143), ("sigint", 130)])
 def test_every_stop_mid_execution_leaves_a_report_and_every_log(tmp_path, how, code):
     run = Run(tmp_path)
@@ -134,6 +135,7 @@ def test_every_stop_mid_execution_leaves_a_report_and_every_log(tmp_path, how, c
     assert not list(tmp_path.glob(".partial-*")) and not (tmp_path / ".replay-draft.mp4").exists()
 
 
+@pytest.mark.slow
 def test_a_failing_run_into_an_earlier_runs_directory_leaves_nothing_of_it_standing(tmp_path):
     """An earlier run's report (8/8 completed) must not become the new run's, nor its page, recording,
     video, details or logs."""
@@ -171,6 +173,7 @@ def _frames(video: Path) -> int:
         cap.release()
 
 
+@pytest.mark.slow
 def test_a_forged_tick_during_a_mission_costs_no_long_video(tmp_path):
     """One decodable Tick(k=100000) and RobotState(tick=100000) on the fleet's keys, then the mission ends:
     the launcher's video (drawn ahead or at the end) stops at the mission's last tick, and says what it left out."""
@@ -285,6 +288,7 @@ def test_a_touchdown_faster_than_3_m_s_is_a_crash_in_the_vehicles_record():
     assert fly(Pilot(5.0, 0.7)) == ["landed"]                                                       # landed
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(os.geteuid() != 0 or not shutil.which("mount"), reason="mounts a small tmpfs (root)")
 def test_a_full_disk_is_one_line_exit_1_and_no_hang(tmp_path):
     disk = tmp_path / "disk"

@@ -7,6 +7,8 @@ import sys
 import threading
 from pathlib import Path
 
+import pytest
+
 from protocol.keys import Keys
 from protocol.messages import Plan, StateBatch, Tick, encode
 from protocol.transport import MemoryBus, MemoryTransport
@@ -88,6 +90,7 @@ def test_lanes_never_meet():
     assert all(abs(a[0] - b[0]) == 1 for a, b in zip(lane.path(3, 20), lane.path(3, 20)[1:]))
 
 
+@pytest.mark.slow
 def test_bench_ticks_runs_real_processes(tmp_path):
     """A small run of the benchmark: real world, robot and echo processes over Zenoh, both hostings."""
     done = subprocess.run([sys.executable, "-m", "uav_robots", "bench", "ticks", "--robots", "4", "--ticks", "20",

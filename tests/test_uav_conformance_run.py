@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from suites import outcome, run_suite
 
 REPO = Path(__file__).resolve().parents[1]
@@ -16,6 +18,7 @@ def _suite(*args: str, timeout: float = 280) -> subprocess.CompletedProcess:
     return run_suite(SUITE, *args, timeout=timeout)
 
 
+@pytest.mark.slow
 def test_our_uav_conforms():
     run = _suite()
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
@@ -23,6 +26,7 @@ def test_our_uav_conforms():
     assert " passed" in last and "failed" not in last and "error" not in last, last
 
 
+@pytest.mark.slow
 def test_a_uav_that_never_comes_up_fails_the_suite():
     silent = f"{shlex.quote(sys.executable)} -c \"import time; time.sleep(60)\""
     run = _suite("--uav-cmd", silent, "--uav-timeout", "2", "-k", "uav_token_is_up")

@@ -40,6 +40,7 @@ def test_the_frozen_robot_is_unchanged():
     assert h.hexdigest() == DIGEST, "tests/v1_robot changed: it is a frozen protocol 1 robot (see its README)"
 
 
+@pytest.mark.slow
 def test_a_protocol_1_robot_passes_the_rules_of_protocol_1():
     run = _suite()
     out = run.stdout
@@ -51,6 +52,7 @@ def test_a_protocol_1_robot_passes_the_rules_of_protocol_1():
     assert "refuses it on a secured fleet" in line, line
 
 
+@pytest.mark.slow
 def test_held_to_protocol_2_it_fails_the_rules_that_changed():
     """The four rules whose meaning changed since protocol 1: not held to them, it passes; held, it fails."""
     changed = ["test_moves_are_asked_on_the_key_naming_the_robot",                    # R35
@@ -69,6 +71,7 @@ def _free_port(kind: int = socket.SOCK_STREAM) -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("secured", [False, True], ids=["open", "secured"])
 def test_a_uav_serves_protocol_1_robots_and_refuses_them_on_a_secured_fleet(tmp_path, secured):
     """Today's UAV and world with a pool of frozen protocol 1 robots: served on an open fleet (the

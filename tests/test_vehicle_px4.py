@@ -95,6 +95,7 @@ def qgc_survey_plan(rows: int = 6, legs: int = 4) -> str:
     return json.dumps(plan).replace("NaN", "null")
 
 
+@pytest.mark.slow
 def test_mavsdk_missions_parameters_and_telemetry_on_the_vehicle():
     """MAVSDK's Mission plugin uploads, downloads and flies a mission with speed, camera and gimbal
     items; MissionRaw imports a QGroundControl survey plan and uploads it, and an item the vehicle
@@ -426,6 +427,7 @@ def test_a_configured_companion_system_is_the_only_one_answered():
 
 # --- an indoor vehicle, and telemetry as an estimate -------------------------------------------------
 
+@pytest.mark.slow
 def test_an_indoor_vehicle_has_a_local_frame_only():
     vehicle = Vehicle(preset("indoor", url="udpin:127.0.0.1:0", time_scale=20.0)).start()
     c = Client(vehicle.local_address[1], heartbeat_hz=4.0)
@@ -454,6 +456,7 @@ def test_an_indoor_vehicle_has_a_local_frame_only():
         vehicle.stop()
 
 
+@pytest.mark.slow
 def test_telemetry_is_an_estimate_when_asked():
     vehicle = Vehicle(VehicleConfig(url="udpin:127.0.0.1:0", time_scale=20.0, seed=4, position_bias_m=1.5,
                                     position_noise_m=0.1, attitude_noise_deg=0.5)).start()

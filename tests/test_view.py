@@ -44,6 +44,7 @@ def recorded(tmp_path_factory):
     return out, load_report(out)
 
 
+@pytest.mark.slow
 def test_mission_mcap_holds_the_mission(recorded):
     from mcap.reader import make_reader
 
@@ -87,6 +88,7 @@ def test_mission_mcap_holds_the_mission(recorded):
     assert jpeg is not None and max(jpeg.shape[:2]) <= 640
 
 
+@pytest.mark.slow
 def test_replay_reproduces_the_video(recorded):
     out, report = recorded
     first = out / "replay.mp4"
@@ -109,6 +111,7 @@ def _frames(path: Path) -> list[np.ndarray]:
         frames.append(f)
 
 
+@pytest.mark.slow
 def test_report_html_has_the_reports_numbers(recorded):
     out, report = recorded
     page = (out / "report.html").read_text()
@@ -177,6 +180,7 @@ def _wait(page, expression, timeout_s):
     page.wait_for_function(expression, timeout=timeout_s * 1000)
 
 
+@pytest.mark.browser
 def test_live_view_in_a_real_browser(tmp_path):
     port = _port()
     log = open(tmp_path / "run.txt", "w")
@@ -224,6 +228,7 @@ def test_live_view_in_a_real_browser(tmp_path):
         log.close()
 
 
+@pytest.mark.browser
 def test_recorded_mission_in_the_view(recorded):
     out, report = recorded
     port = _port()

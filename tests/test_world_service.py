@@ -204,6 +204,7 @@ def wait_alive(hub: Hub, key: str, timeout: float = 15.0) -> bool:
         h.close()
 
 
+@pytest.mark.slow
 def test_world_process_serves_and_leaves_after_the_uav():
     with Hub() as hub:
         uav = FakeUav(hub.transport, hub.keys)
@@ -307,6 +308,7 @@ def _world_alone() -> subprocess.Popen:
                             text=True, stdin=subprocess.DEVNULL)
 
 
+@pytest.mark.slow
 def test_the_world_alone_is_a_sitl_and_stops_within_a_second():
     """No arguments: its own router and the default fleet, the vehicle on PX4 SITL's usual port."""
     from pymavlink import mavutil
@@ -329,6 +331,7 @@ def test_the_world_alone_is_a_sitl_and_stops_within_a_second():
             proc.wait()
 
 
+@pytest.mark.slow
 def test_the_world_stops_promptly_while_it_waits_for_a_router():
     proc = subprocess.Popen([sys.executable, "-m", "sim_world", "--connect", "tcp/127.0.0.1:9", "--mavlink", "none"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
