@@ -22,7 +22,7 @@ import pytest
 
 ENV, DEFAULTS_ENV = "UAV_ROBOTS_ARDUPILOT_SITL", "UAV_ROBOTS_ARDUPILOT_DEFAULTS"
 HOME = (47.397742, 8.545594, 488.0)   # any place: the floor is pinned where the autopilot's first home is
-# ArduPilot's physics and RC input ports are 5501 + 10 * instance (and 5760 + 10 * instance for TCP):
+# ArduPilot SITL's RC input port is 5501 + 10 * instance, its serial ports' TCP ones 5760 + 10 * instance:
 # an instance whose ports are free, so that a SITL someone left running is no trouble.
 INSTANCES = range(20, 60)
 
