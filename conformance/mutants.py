@@ -557,7 +557,9 @@ def _robot_patches() -> dict[str, Patch]:
         "R66": lambda: (setattr(agent.Lifecycle, "stop_on_signals_real", agent.Lifecycle.stop_on_signals),
                         setattr(agent.Lifecycle, "stop_on_signals", ignore_sigint)) and None,
         "R67": setattr_(RobotPool, "start", exit_without_uav),
-        "R68": setattr_(agent, "JOIN_TIMEOUT_S", 30.0),
+        # Waits out its pending move query at the end. Joining longer alone ends with the 5 s query, as long
+        # as the rule's window: on a loaded machine that mutant exited inside it (CI, 2026-11-28).
+        "R68": lambda: [setattr(agent, "JOIN_TIMEOUT_S", 30.0), setattr(agent, "MOVE_TIMEOUT_S", 30.0)] and None,
         "R69": setattr_(RobotPool, "_on_end", lambda self, key, payload: self.finish("anything on mission/end")),
         "R70": setattr_(agent, "open_session", no_wait),
         "R71": setattr_(RobotMachine, "_ack", lambda self, pid, ok, error: PlanAck(
