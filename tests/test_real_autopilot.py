@@ -21,6 +21,7 @@ import pytest
 from pymavlink import mavutil
 
 from ardupilot_sitl import ArduCopter, binary
+from conftest import _free_port
 from uav_agent.flight import Flight
 
 pytestmark = [pytest.mark.timeout(900), pytest.mark.slow]
@@ -29,16 +30,10 @@ pytestmark = [pytest.mark.timeout(900), pytest.mark.slow]
 ARM_S = 120.0
 
 
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture
 def ports():
     binary()   # skip at once, before ports and folders, when no SITL is named
-    return free_udp_port(), free_udp_port(), free_udp_port()
+    return tuple(_free_port(socket.SOCK_DGRAM) for _ in range(3))
 
 
 def test_mavsdk_flies_arducopter_and_arms_it_again_after_a_landing(tmp_path, ports):

@@ -87,6 +87,7 @@ class Flight:
         self._telemetry: Telemetry | None = None
         self._home: tuple[float, float, float] | None = None
         self._offboard: Offboard | None = None   # the local frame's setpoints (no home)
+        self._direct: MavlinkDirect | None = None   # raw commands MAVSDK's plugins lack (ArduPilot's GUIDED)
         self._alert: tuple[float, str] = (-math.inf, "")   # (when, text) of the last warning or worse
         # Why the vehicle is no longer the mission's (a failsafe's RTL or LAND, a pilot's mode, a
         # disarm), or None: checked before every command and in every wait, so the agent never
@@ -205,7 +206,7 @@ class Flight:
     def close(self) -> None:
         """Release MAVSDK (sockets, threads). Idempotent; `connect()` again to reuse the Flight."""
         mavsdk, self._mavsdk = self._mavsdk, None
-        self._action = self._telemetry = self._system = self._offboard = None
+        self._action = self._telemetry = self._system = self._offboard = self._direct = None
         if mavsdk is not None:
             mavsdk.destroy()
         config, self._config = self._config, None
@@ -266,15 +267,12 @@ class Flight:
                   "param2": COPTER_GUIDED, "param3": 0, "param4": 0, "param5": 0, "param6": 0, "param7": 0}
         message = MavlinkMessage("COMMAND_LONG", 0, 0, fields["target_system"], 1, json.dumps(fields))
         try:
-            MavlinkDirect(self._system).send_message(message)
+            self._direct = self._direct or MavlinkDirect(self._system)
+            self._direct.send_message(message)
         except Exception as exc:  # noqa: BLE001 - MavlinkDirectError: the link is gone
             raise MissionError(f"could not ask the vehicle for GUIDED: {exc}") from None
-        deadline = time.monotonic() + ARM_RETRY_S
-        while time.monotonic() < deadline:
-            if self.flight_mode == "OFFBOARD":
-                return
-            time.sleep(POLL_S)
-        raise MissionError("vehicle refused GUIDED")
+        self._wait(lambda: self.flight_mode == "OFFBOARD", time.monotonic() + ARM_RETRY_S,
+                   lambda: "vehicle refused GUIDED")
 
     def takeoff(self, alt_m: float, timeout_s: float = 60.0) -> None:
         """Arm if needed, take off to `alt_m` above home, wait until in the air near it."""
