@@ -474,7 +474,7 @@ def test_the_survey_border_counts_the_lens_the_tilt_and_the_hold_and_the_450_flo
     tolerance: the realistic camera's mild barrel lens leaves nothing empty, a pincushion lens
     its corners."""
     from sim_world.world import DRONE_CAMERA
-    from uav_agent.mission import LEVEL_TILT_DEG, Mission
+    from uav_agent.mission.looks import LEVEL_TILT_DEG, border
     from uav_agent.perception.frames import lens_margin_px
     from uav_agent.survey import tilt_margin_px
 
@@ -483,10 +483,10 @@ def test_the_survey_border_counts_the_lens_the_tilt_and_the_hold_and_the_450_flo
     assert lens_margin_px(realistic) == lens_margin_px(pinhole) == 0
     assert lens_margin_px(pincushion) > 100
     tx, ty = tilt_margin_px(realistic, math.radians(LEVEL_TILT_DEG))
-    assert Mission._border(realistic, 19.0, 1.0) == Mission._border(pinhole, 19.0, 1.0) == (8 + tx + 19, 8 + ty + 19)
+    assert border(realistic, 19.0, 1.0) == border(pinhole, 19.0, 1.0) == (8 + tx + 19, 8 + ty + 19)
     lens = lens_margin_px(pincushion)
-    assert Mission._border(pincushion, 19.0, 1.0) == (8 + lens + tx + 19, 8 + lens + ty + 19)
-    poses = survey_poses(450, 450, CELL, realistic, min_px_per_cell=19.0, border_px=Mission._border(realistic))
+    assert border(pincushion, 19.0, 1.0) == (8 + lens + tx + 19, 8 + lens + ty + 19)
+    poses = survey_poses(450, 450, CELL, realistic, min_px_per_cell=19.0, border_px=border(realistic))
     assert len(poses) == 9 and 2000 / poses[0].alt_m >= 19.0
 
 

@@ -10,7 +10,7 @@ import psutil
 import pytest
 
 from protocol.mapfile import parse_rows
-from uav_agent.mission import load_report
+from uav_agent.report import load_report
 from uav_agent.planning.types import Problem
 from uav_agent.planning.validator import validate
 

@@ -24,8 +24,11 @@ from protocol.transport import MemoryBus, MemoryTransport
 from scenes import open_map
 from sim_world.camera.mavlink_camera import camera_quaternion
 from sim_world.world import World, WorldConfig
-from uav_agent.camera_source import (CameraSourceConfig, MavlinkSource, VideoSource, ZenohSource, body_attitude,
-                                     open_camera_source)
+from uav_agent.camera_source import open_camera_source
+from uav_agent.camera_source.base import CameraSourceConfig, body_attitude
+from uav_agent.camera_source.mavlink_source import MavlinkSource
+from uav_agent.camera_source.video_source import VideoSource
+from uav_agent.camera_source.zenoh_source import ZenohSource
 
 CAMERA = 100
 # A small camera with a lens, so that what has no MAVLink field (the distortion) is seen to travel.
@@ -141,10 +144,10 @@ def test_mavsdks_camera_plugin_takes_a_photo(tmp_path, monkeypatch):
     from mavsdk import ComponentType, Configuration, Mavsdk
     from mavsdk.plugins.camera import Camera
 
-    from uav_agent.flight import _route_mavsdk_logs
+    from uav_agent.mavsdk_logs import route_mavsdk_logs
 
     monkeypatch.setenv("HOME", str(tmp_path))   # MAVSDK caches the definition file under ~/.cache
-    _route_mavsdk_logs()
+    route_mavsdk_logs()
     with camera_world(tmp_path) as (world, port):
         config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
         sdk = Mavsdk(config)

@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from uav_agent.mission import load_report
+from uav_agent.report import load_report
 
 CLI = [sys.executable, "-m", "uav_robots"]
 

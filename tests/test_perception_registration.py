@@ -260,7 +260,7 @@ def test_the_450_surveys_pad_layout_robots_read_by_the_detector_are_kept():
     grid laid over one reads half off and once vetoed true detections (these two frames)."""
     from sim_world.camera import PoseEstimator, VehicleView, capture_frame
     from sim_world.world import DRONE_CAMERA
-    from uav_agent.mission import Mission
+    from uav_agent.mission.looks import border
     from uav_agent.perception.markers import read_markers
     from uav_agent.perception.occupancy import cells_in
 
@@ -269,7 +269,7 @@ def test_the_450_surveys_pad_layout_robots_read_by_the_detector_are_kept():
     marks = Landmarks(scene.landmarks.family, scene.landmarks.size_m, {})
     for lid, e, n in scene.landmarks.landmarks:
         marks.by_id[lid] = np.vstack([marks.by_id.get(lid, np.zeros((0, 2))), [[e, n]]])
-    poses = survey_poses(450, 450, CELL, model, min_px_per_cell=20.0, border_px=Mission._border(model))
+    poses = survey_poses(450, 450, CELL, model, min_px_per_cell=20.0, border_px=border(model))
     for k in (4, 6):
         n, e, alt = poses[k]
         view = prepare(capture_frame(scene, VehicleView(n, e, -alt), model, CELL, PoseEstimator(model, 0), 8.0, k),
@@ -337,7 +337,7 @@ def test_an_arrival_image_of_a_region_shows_its_goals_and_enough_landmarks_and_r
 
     from sim_world.camera import PoseEstimator, Roi, VehicleView, camera_frame, capture_frame
     from sim_world.world import DRONE_CAMERA
-    from uav_agent.mission import LEVEL_TILT_DEG, Mission
+    from uav_agent.mission.looks import LEVEL_TILT_DEG, border
     from uav_agent.perception.fusion import Fusion
     from uav_agent.region import MIN_LANDMARKS, region_for
 
@@ -348,7 +348,7 @@ def test_an_arrival_image_of_a_region_shows_its_goals_and_enough_landmarks_and_r
     pose = (-225.0, 225.0, 104.8)
     near = sorted((c for c in scene.robots.values() if abs(c[0] - 225) < 40 and abs(c[1] - 225) < 30))[:4]
     assert len(near) >= 2
-    margin = max(Mission._border(calibration, 2000 / pose[2], CELL))
+    margin = max(border(calibration, 2000 / pose[2], CELL))
     roi = region_for(near, calibration, pose, CELL, marks, margin, (450, 450))
     assert roi is not None and roi.width * roi.height < 0.5 * 4000 * 3000
     # everything it should show lies inside, with room for the tilt and the hold
@@ -392,7 +392,7 @@ def test_robots_parked_on_their_goals_are_read_through_the_target_degradation():
     # went unseen (26 of all 50), and the mission counted their arrivals as contradicted.
     from sim_world.camera import PoseEstimator, VehicleView, capture_frame
     from sim_world.world import DRONE_CAMERA
-    from uav_agent.mission import Mission
+    from uav_agent.mission.looks import border
     from uav_agent.survey import covering
 
     model = CameraModel(**{**DRONE_CAMERA, **PRESETS["realistic"], **TARGET})
@@ -402,7 +402,7 @@ def test_robots_parked_on_their_goals_are_read_through_the_target_degradation():
                    surveyed.landmarks, goal_pads=surveyed.goal_pads)
     h, w = parked.free.shape
     ppc = 37.8   # what the survey measures for this blur (the mission's report: survey_px_per_cell)
-    poses = survey_poses(w, h, CELL, model, min_px_per_cell=ppc, border_px=Mission._border(model, ppc, CELL))
+    poses = survey_poses(w, h, CELL, model, min_px_per_cell=ppc, border_px=border(model, ppc, CELL))
     first = {ids[i]: surveyed.goals[i] for i in range(10)}
     estimator = PoseEstimator(model, 0)
     frames = [capture_frame(parked, VehicleView(n, e, -alt, 0.0), model, CELL, estimator, 2.0 * k, k)

@@ -10,6 +10,7 @@ import math
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from uav_agent.perception.relook import MAX_HOVERS, closer_look, hover_points, plan_round
 from uav_robots.bench_perception import bench_scene, score, simulate
@@ -101,29 +102,49 @@ def test_while_a_robot_is_missing_lone_shelf_cells_get_a_closer_look():
     assert plan_round(model, {1}, True, 1, 20.0, 1.0, CAMERA) == ([], [])
 
 
-def looking_mission(toured: list, tick: int = 0):
-    """A Mission with an in-memory vehicle over a 40x40 floor surveyed from 30 m, whose image
-    tours are only recorded in `toured`: enough for its looking logic (_see, _verify)."""
-    from sim_world.camera import camera_frame
-    from uav_agent.events import EventLog
-    from uav_agent.mission import Mission
+@pytest.fixture
+def mission_context():
+    """MissionContexts on in-memory sessions: the phases' state, nothing flown yet; closed after the test."""
+    from protocol.transport import MemoryBus, MemoryTransport
+    from uav_agent.mission import MissionConfig, MissionContext
     from uav_agent.progress import Progress
 
-    m = Mission.__new__(Mission)
-    m.events, m.tick, m.progress = EventLog(), tick, Progress(enabled=False)
-    m.transport = SimpleNamespace(put=lambda key, payload: None)
-    m.keys = SimpleNamespace(mission_event="e", mission_status="s")
-    m._seq = m.seq = 0
-    m.flight = SimpleNamespace(position_ned=lambda: (-20.0, 20.0, -30.0), goto=lambda *a: None)
-    m.info = SimpleNamespace(cell_size_m=1.0)
-    m._survey_alt, m._poses, m._hover_ned, m.landmarks = 30.0, [(0.0, 0.0, 30.0)], (-20.0, 20.0, 30.0), None
-    m._camera = camera_frame((0.0, 0.0, -30.0), CameraModel(width=1280, height=960, fx=640.0, fy=640.0), 0.0)
-    m._tour = lambda hovers, fusion: toured.append(hovers)
-    return m
+    made = []
+
+    def make(tick: int = 0):
+        ctx = MissionContext(MissionConfig(fleet="t"), MemoryTransport(MemoryBus()), Progress(enabled=False))
+        ctx.tick = tick
+        made.append(ctx)
+        return ctx
+    yield make
+    for ctx in made:
+        ctx.fleet.close()
+        ctx.transport.close()
 
 
-def test_a_closer_look_is_an_event_of_the_mission_naming_what_was_in_doubt():
-    """Mission._see with an in-memory fusion and vehicle: the closer look it flies goes into the
+@pytest.fixture
+def looking(monkeypatch, mission_context):
+    """A context with an in-memory vehicle over a 40x40 floor surveyed from 30 m, whose image
+    tours are only recorded in `toured`: enough for the looking phases (looks.see, verify.run)."""
+    from sim_world.camera import camera_frame
+    from uav_agent.mission import looks
+
+    toured: list = []
+    monkeypatch.setattr(looks, "tour", lambda ctx, hovers, fusion: toured.append(hovers))
+
+    def make(tick: int = 0):
+        ctx = mission_context(tick)
+        ctx.flight = SimpleNamespace(position_ned=lambda: (-20.0, 20.0, -30.0), goto=lambda *a: None)
+        ctx.info = SimpleNamespace(cell_size_m=1.0)
+        v = ctx.vantage
+        v.alt, v.poses, v.hover = 30.0, [(0.0, 0.0, 30.0)], (-20.0, 20.0, 30.0)
+        v.calibration = camera_frame((0.0, 0.0, -30.0), CameraModel(width=1280, height=960, fx=640.0, fy=640.0), 0.0)
+        return ctx, toured
+    return make
+
+
+def test_a_closer_look_is_an_event_of_the_mission_naming_what_was_in_doubt(looking):
+    """looks.see with an in-memory fusion and vehicle: the closer look it flies goes into the
     report's events (kind closer-look), naming the unread marker and the robot not yet seen."""
     from uav_agent.perception.fusion import WorldModel
 
@@ -132,19 +153,20 @@ def test_a_closer_look_is_an_event_of_the_mission_naming_what_was_in_doubt():
                        unidentified=[(20, 21)])
     clear = WorldModel(free=free, robots={1: (3, 3), 2: (20, 21)}, goals=[(5, 5), (6, 6)], seen=free, unseen=0)
     models = iter([doubt, clear])
-    toured = []
-    m = looking_mission(toured)
+    from uav_agent.mission import looks
+
+    m, toured = looking()
     fusion = SimpleNamespace(known_ids={1, 2}, model=lambda: next(models))
-    assert m._see(fusion) is clear and len(toured) == 1
+    assert looks.see(m, fusion) is clear and len(toured) == 1
     (e,) = m.events.as_dicts()
     assert e["kind"] == "closer-look" and e["robots"] == [2]
     assert "1 unreadable marker(s) at [(20, 21)]" in e["what"] and "round 1" in e["action"]
 
 
-def test_the_shutter_waits_for_an_attitude_sent_after_the_arrival():
+def test_the_shutter_waits_for_an_attitude_sent_after_the_arrival(mission_context):
     """The attitude read with the arrival may be the cruise's (level): the shutter waits for a
     later sample, which shows the braking, and for that tilt to decay."""
-    from uav_agent.mission import Mission
+    from uav_agent.mission import looks
 
     samples = iter([(0.0, 0.0, 0.0, 100), (0.0, 0.0, 0.0, 100), (0.35, 0.0, 0.0, 140), (0.05, 0.0, 0.0, 180),
                     (0.001, 0.0, 0.0, 220)])
@@ -155,67 +177,61 @@ def test_the_shutter_waits_for_an_attitude_sent_after_the_arrival():
         read.append(s)
         return s
 
-    m = Mission.__new__(Mission)
+    m = mission_context()
     m.flight = SimpleNamespace(attitude_sample=sample)
-    m._hold_level()
+    looks.hold_level(m)
     assert read[-1][3] == 220
 
 
-def test_an_image_shot_leaning_is_taken_again_level_and_the_report_says_why():
-    """Mission._retake with an in-memory vehicle: the survey's image set aside for its lean
+def test_an_image_shot_leaning_is_taken_again_level_and_the_report_says_why(mission_context):
+    """looks.retake with an in-memory vehicle: the survey's image set aside for its lean
     (Shots.missed) is taken again over its pose, and the report's events name why."""
-    from uav_agent.events import EventLog
-    from uav_agent.mission import Mission
-    from uav_agent.progress import Progress
+    from uav_agent.mission import looks
 
     flown, added = [], []
-    m = Mission.__new__(Mission)
-    m.events, m.tick, m.progress, m.uav = EventLog(), 0, Progress(enabled=False), {}
-    m.transport = SimpleNamespace(put=lambda key, payload: None)
-    m.keys = SimpleNamespace(mission_event="e")
-    m._seq = 0
+    m = mission_context()
     m.flight = SimpleNamespace(goto=lambda *a: flown.append(a), attitude_sample=lambda: (0.0, 0.0, 0.0, 0))
-    m._hover_ned = (-20.0, 20.0, 30.0)
-    m._capture = lambda: "level frame"
+    m.vantage.hover = (-20.0, 20.0, 30.0)
+    m.capture = lambda: "level frame"
     shots = SimpleNamespace(missed=[(-10.0, 5.0, 30.0)], why_missed=["taken leaning 20.0 degrees"])
-    m._retake(shots, SimpleNamespace(add=added.append))
+    looks.retake(m, shots, SimpleNamespace(add=added.append))
     assert flown == [(-10.0, 5.0, 30.0), (-20.0, 20.0, 30.0)] and added == ["level frame"]
     assert m.uav["retaken_images"] == 1
     (e,) = m.events.as_dicts()
     assert e["kind"] == "retake" and "taken leaning 20.0 degrees at (-10.0, 5.0, 30.0)" in e["what"]
 
 
-def test_a_robot_that_raised_done_but_was_seen_nowhere_gets_a_closer_look_at_its_goal_before_it_is_doubted():
-    """Mission._verify with an in-memory fleet, vehicle and fusion: the verification's look sees
+def test_a_robot_that_raised_done_but_was_seen_nowhere_gets_a_closer_look_at_its_goal_before_it_is_doubted(
+        looking, monkeypatch):
+    """verify.run with an in-memory fleet, vehicle and fusion: the verification's look sees
     robot 1 on its goal and robot 2 nowhere; a closer look over robot 2's goal (half the survey's
     height) sees it there, so both are verified and the report names the closer look. A robot the
     look sees somewhere else is not looked for again: its Done is contradicted."""
-    import threading
-
+    from uav_agent.mission import looks, verify
+    from uav_agent.mission.state import PlanState
     from uav_agent.perception.fusion import WorldModel
 
     free = np.ones((40, 40), bool)
     goals = {1: (5, 5), 2: (20, 21), 3: (30, 30)}
-    toured = []
-    m = looking_mission(toured, tick=249)
-    m.ids, m.goal_of, m.confirmed, m.verified, m._contradicted = [1, 2, 3], goals, {}, {}, set()
-    m.plan = SimpleNamespace(ids=[1, 2, 3], plan_id="p")
-    m.fleet = SimpleNamespace(cv=threading.Condition(), done={1: None, 2: None, 3: None})
-    m._done_for = lambda r, plan: True
-    m.clock = SimpleNamespace(lap=lambda name: None)
-    m._look = lambda cells, back=True, expected=None: {1: goals[1], 3: (29, 30)}   # 2 seen nowhere, 3 off its goal
+    m, toured = looking(tick=249)
+    m.plans.ids, m.plans.goal_of = [1, 2, 3], goals
+    m.plans.now = PlanState("p", 0, {r: [g] for r, g in goals.items()}, goals)
+    m.fleet.done.update({1: None, 2: None, 3: None})
+    m.done_for = lambda r, plan: True
+    # 2 seen nowhere, 3 off its goal
+    monkeypatch.setattr(looks, "look", lambda ctx, cells, back=True, expected=None: {1: goals[1], 3: (29, 30)})
     closer = WorldModel(free=free, robots={2: goals[2]}, goals=[goals[2]], seen=free, unseen=0)
-    m._fusion = lambda known=None: SimpleNamespace(known_ids=known, model=lambda: closer)
-    m._verify()
-    assert m.verified == {1: True, 2: True, 3: False}
+    m.fusion = lambda known=None: SimpleNamespace(known_ids=known, model=lambda: closer)
+    verify.run(m)
+    assert m.arrivals.verified == {1: True, 2: True, 3: False}
     (hovers,) = toured
     assert hovers and all(alt == 15.0 for _, _, alt in hovers)
     kinds = [(e["kind"], e["robots"]) for e in m.events.as_dicts()]
     assert kinds == [("closer-look", [2]), ("done-contradicted", [3])]
 
 
-def test_a_look_for_some_robots_flies_no_closer_look_for_the_others():
-    """Mission._see with `expected`: the verification's look over the goals still unconfirmed
+def test_a_look_for_some_robots_flies_no_closer_look_for_the_others(looking):
+    """looks.see with `expected`: the verification's look over the goals still unconfirmed
     is for those robots; a robot confirmed elsewhere is not in its images, and taking it for
     missing sent the vehicle over every lone obstacle of a random floor (three rounds, 24 s)."""
     from uav_agent.perception.fusion import WorldModel
@@ -223,9 +239,11 @@ def test_a_look_for_some_robots_flies_no_closer_look_for_the_others():
     free = np.ones((40, 40), bool)
     free[10, 10] = free[30, 5] = False               # lone obstacles: a blurred marker could look like one
     seen = WorldModel(free=free, robots={1: (3, 3)}, goals=[(3, 3)], seen=np.ones((40, 40), bool), unseen=0)
+    from uav_agent.mission import looks
+
     for expected, rounds in (({1}, 0), (None, 3)):
-        toured = []
-        m = looking_mission(toured)
+        m, toured = looking()
+        toured.clear()
         fusion = SimpleNamespace(known_ids={1, 2}, model=lambda: seen)
-        assert m._see(fusion, for_map=False, expected=expected) is seen
+        assert looks.see(m, fusion, for_map=False, expected=expected) is seen
         assert len(toured) == rounds

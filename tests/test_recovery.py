@@ -22,7 +22,7 @@ from protocol.config import client_config
 from protocol.keys import Keys
 from protocol.messages import Done, encode
 from protocol.transport import ZenohTransport
-from uav_agent.mission import load_report
+from uav_agent.report import load_report
 
 CLI = [sys.executable, "-m", "uav_robots", "run", "--camera", "ideal"]   # the subject is recovery, not the camera
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from scenarios.maps import place, resolve_map
-from uav_agent.mission import load_report
+from uav_agent.report import load_report
 from uav_robots import replay
 from uav_robots.recording import Recording, read_mcap
 from uav_robots.report_html import arrived_per_tick, compare

@@ -64,7 +64,7 @@ def add_uav_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def add_camera_source_arguments(p: argparse.ArgumentParser) -> None:
-    from .camera_source import DEFAULT_CAMERA_MAVLINK, KINDS
+    from .camera_source.base import DEFAULT_CAMERA_MAVLINK, KINDS
 
     p.add_argument("--camera-source", default="zenoh", metavar="|".join(KINDS),
                    help="where the images come from: zenoh (the world's world/camera query, default), mavlink (the "
@@ -82,7 +82,7 @@ def add_camera_source_arguments(p: argparse.ArgumentParser) -> None:
 
 def camera_source_config(a: argparse.Namespace):
     """The --camera-* options, checked (one line for bad input)."""
-    from .camera_source import CameraSourceConfig
+    from .camera_source.base import CameraSourceConfig
 
     cfg = CameraSourceConfig(a.camera_source, a.camera_mavlink, a.camera_video, a.camera_calibration)
     cfg.check()
@@ -92,7 +92,8 @@ def camera_source_config(a: argparse.Namespace):
 def uav_command(a: argparse.Namespace) -> int:
     from scenarios.limits import check_fleet
 
-    from .mission import Mission, MissionConfig, exit_code, split_report, summary
+    from .mission import MissionConfig, run_mission
+    from .report import exit_code, split_report, summary
     from .progress import Progress
     from .planning.assignment import DEFAULT_ASSIGNMENT
 
@@ -106,7 +107,7 @@ def uav_command(a: argparse.Namespace) -> int:
                         tick_rate_hz=a.tick_rate,
                         monitor_every=a.monitor_every, observers=max(0, a.observers),
                         camera=camera_source_config(a))
-    report = Mission(cfg, Progress(enabled=not a.quiet)).run()
+    report = run_mission(cfg, Progress(enabled=not a.quiet))
     if a.summary == "text":
         print(summary(report, cfg.out), flush=True)
     elif a.summary == "json":

@@ -20,12 +20,10 @@ from __future__ import annotations
 import json
 import logging
 import math
-import threading
 import time
 from typing import Callable
 
 from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk
-from mavsdk.logging import LogLevel, log_subscribe
 from mavsdk.plugins.action import Action, ActionError, ActionResult
 from mavsdk.plugins.mavlink_direct import MavlinkDirect, MavlinkMessage
 from mavsdk.plugins.offboard import Offboard, OffboardError, PositionNedYaw
@@ -33,7 +31,8 @@ from mavsdk.plugins.telemetry import FixType, LandedState, StatusTextType, Telem
 
 from protocol.errors import MissionError
 from protocol.geo import check_home, geo_to_ned, ned_to_geo
-from protocol.log import Throttled
+
+from .mavsdk_logs import route_mavsdk_logs
 
 DEFAULT_URL = "udpin://0.0.0.0:14540"
 POLL_S = 0.02
@@ -49,27 +48,6 @@ MAV_CMD_DO_SET_MODE, CUSTOM_MODE_ENABLED, COPTER_GUIDED = 176, 1, 4
 ALERT_S = 15.0
 
 _log = logging.getLogger("uav_agent.flight")
-_log_installed = threading.Lock()
-_log_routed = False
-
-
-def _route_mavsdk_logs() -> None:
-    """MAVSDK's own warnings and errors as the UAV's throttled warning lines, once; its debug and
-    info lines not at all (it prints them to stdout by default). What it logs can quote anything
-    a stranger sends to the MAVLink port (500 PARAM_SETs were 500 lines, with the sender's bytes)."""
-    global _log_routed
-    with _log_installed:
-        if _log_routed:
-            return
-        warn = Throttled("uav: MAVSDK")
-
-        def forward(level, message, file, line):
-            if level in (LogLevel.WARN, LogLevel.ERROR):
-                warn(message)
-            return True  # suppress MAVSDK's default printing
-
-        log_subscribe(forward)
-        _log_routed = True
 
 
 class Flight:
@@ -101,7 +79,7 @@ class Flight:
         a second, and its beats before this are lost (UDP): open early, `connect` later."""
         if self._mavsdk is not None:
             return self
-        _route_mavsdk_logs()
+        route_mavsdk_logs()
         self._config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
         self._mavsdk = Mavsdk(self._config)
         try:

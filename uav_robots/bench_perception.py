@@ -29,7 +29,8 @@ from protocol.errors import UavRobotsError
 from scenarios.maps import place, resolve_map
 from sim_world.camera import PRESETS, CameraModel, PoseEstimator, Scene, VehicleView, capture_frame, scene_landmarks
 from sim_world.world import DRONE_CAMERA
-from uav_agent.mission import Mission, MissionConfig
+from uav_agent.mission import MissionConfig
+from uav_agent.mission.looks import border as survey_border
 from uav_agent.perception import Landmarks, decode_frame, perceive
 from uav_agent.perception.blur import blur_sigma
 from uav_agent.perception.frames import undistorted
@@ -110,7 +111,7 @@ def simulate(scene: Scene, model: CameraModel, seed: int = 0, survey_tilt_deg: f
         spent[0] += time.perf_counter() - t
         return out
 
-    border = Mission._border(model, MIN_PX_PER_CELL, CELL)   # the mission's (the model has the frame's lens fields)
+    border = survey_border(model, MIN_PX_PER_CELL, CELL)   # the mission's (the model has the frame's lens fields)
     poses = survey_poses(w, h, CELL, model, min_px_per_cell=MIN_PX_PER_CELL, border_px=border)
     first = shoot(*poses[0], tilt)
 
@@ -123,7 +124,7 @@ def simulate(scene: Scene, model: CameraModel, seed: int = 0, survey_tilt_deg: f
 
     ppc = timed(need_ppc)
     if ppc > MIN_PX_PER_CELL:
-        poses = survey_poses(w, h, CELL, model, min_px_per_cell=ppc, border_px=Mission._border(model, ppc, CELL))
+        poses = survey_poses(w, h, CELL, model, min_px_per_cell=ppc, border_px=survey_border(model, ppc, CELL))
         for p in poses:
             shoot(*p, tilt)
     else:

@@ -503,7 +503,7 @@ def write_views(out: Path, samples: list, fleet: str, rows: list[str], quiet: bo
     makes it, up to the mission's last tick; the one `ahead` (a VideoAhead) drew while the vehicle
     landed, if the recording draws the same), each whole or not at all. `rows`: the floor, where the
     report has none. Returns what could not be written, each with why."""
-    from uav_agent.mission import load_report
+    from uav_agent.report import load_report
 
     from . import recording, replay, report_html
 

@@ -66,7 +66,7 @@ def replay_command(args: argparse.Namespace) -> int:
 
 def _report(directory: Path) -> dict[str, Any] | None:
     """The run's report with its details and plan, if it has a readable one: what bounds the replay."""
-    from uav_agent.mission import load_report
+    from uav_agent.report import load_report
 
     try:
         return load_report(directory)

@@ -1,0 +1,38 @@
+"""The world's `world/camera` query over Zenoh (the default source)."""
+from __future__ import annotations
+
+from typing import Any, Callable
+
+from protocol.errors import MissionError, ProtocolError
+from protocol.keys import Keys
+from protocol.messages import (CameraFrame, CameraRequest, WorldInfoRequest, decode, encode)
+from protocol.transport import PendingRequest, Transport
+
+from .base import CAMERA_TIMEOUT_S, QUERY_TIMEOUT_S, CameraSource
+
+
+class ZenohSource(CameraSource):
+    """The world's `world/camera` query."""
+    name = "the world's camera"
+
+    def __init__(self, transport: Transport, keys: Keys, next_seq: Callable[[], int]) -> None:
+        self.transport, self.keys, self._next = transport, keys, next_seq
+
+    def frame(self, calibration_only: bool = False) -> CameraFrame:
+        replies = self.transport.request(self.keys.camera, encode(CameraRequest(calibration_only=calibration_only,
+                                                                                seq=self._next())), CAMERA_TIMEOUT_S)
+        if not replies:
+            raise MissionError(f"no answer from the world's camera within {CAMERA_TIMEOUT_S:g} s")
+        try:
+            return decode(replies[0], CameraFrame)
+        except ProtocolError as exc:
+            raise MissionError(f"the world's camera answered garbage: {exc}") from None
+
+    def start(self, roi: Any = None) -> PendingRequest:
+        area = {} if roi is None else {"roi_x": roi.x, "roi_y": roi.y, "roi_width": roi.width,
+                                       "roi_height": roi.height}
+        return self.transport.request_start(self.keys.camera, encode(CameraRequest(seq=self._next(), **area)),
+                                            CAMERA_TIMEOUT_S)
+
+    def fence(self) -> None:
+        self.transport.request(self.keys.world_info, encode(WorldInfoRequest(seq=self._next())), QUERY_TIMEOUT_S)
