@@ -17,6 +17,7 @@ import threading
 from typing import Any, Callable
 
 from .errors import MissionError, UavRobotsError
+from .run_spec import given_flags
 
 
 def die_with_parent() -> None:
@@ -85,6 +86,7 @@ def command_main(build: Callable[[list[str]], argparse.ArgumentParser], argv: li
     own_process = argv is None      # the command itself, not a caller in a process that goes on
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build(argv).parse_args(argv)
+    args.given_flags = given_flags(argv)   # what a run's --spec may not override (run_spec.apply_spec)
     try:
         return int(args.func(args) or 0)
     except MissionError as exc:

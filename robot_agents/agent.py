@@ -26,14 +26,15 @@ from typing import Any, Callable, Sequence
 
 from protocol.config import add_session_arguments
 from protocol.errors import ProtocolError, UavRobotsError
+from protocol.faults import ROBOTS, Fault, parse_fault, usage
 from protocol.keys import DEFAULT_FLEET, Keys, format_ids, parse_ids, robot_id_from_key  # noqa: F401 - re-exported
 from protocol.log import Throttled
 from protocol.messages import (Done, MissionEnd, MoveAhead, MoveBatch, MoveBatchResult, MoveRequest, MoveResult,
                                MovesJudged, Plan, RobotState, StateBatch, Tick, decode, encode)
 from protocol.process import Lifecycle, command_main, one_command
+from protocol.run_spec import add_spec_argument, apply_spec
 from protocol.transport import Transport, lean_runtime, open_session
 
-from .faults import Fault, parse_fault
 from .robot import RobotMachine, Step
 
 MOVE_TIMEOUT_S = 5.0   # longer than the world's batch timeout, so a slow tick is still answered
@@ -356,8 +357,14 @@ def add_robot_arguments(p: argparse.ArgumentParser) -> None:
                    help="query: ask the world on each Tick (two wakes a tick); ahead: put each move one tick "
                         "ahead and be paced by the world's answers (one wake a tick; docs/protocol.md)")
     p.add_argument("--fault", action="append", default=[], metavar="SPEC",
-                   help="inject a fault into a hosted robot (repeatable): crash:ROBOT@TICK, "
-                        "stall:ROBOT@TICK:TICKS or liar:ROBOT")
+                   help=f"inject a fault into a hosted robot (repeatable): {usage(ROBOTS)}")
+    add_spec_argument(p)
+
+
+# What a robot process takes from a run's spec (`--spec OUT/run.json`): the robots' faults (each pool
+# keeps those of the robots it hosts).
+SPEC_FIELDS = {"--connectivity": lambda s: s.planning.connectivity,
+               "--fault": lambda s: [str(f) for f in s.parsed_faults() if f.injector == ROBOTS]}
 
 
 def robot_main(argv: list[str] | None = None) -> int:
@@ -374,7 +381,8 @@ def robot_command(args: argparse.Namespace) -> int:
     if any(i < 0 for i in ids):
         raise UavRobotsError("robot ids must be non-negative")
     Keys(args.fleet)  # a bad fleet name fails before the session opens
-    faults = [parse_fault(f) for f in args.fault]
+    apply_spec(args, SPEC_FIELDS)
+    faults = [parse_fault(f, ROBOTS) for f in args.fault]
     life = Lifecycle()   # signals stop the pool even while the session is still opening
     life.stop_on_signals()
     stop = life.stop

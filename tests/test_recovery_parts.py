@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from protocol.errors import PlanningError, UavRobotsError
-from robot_agents.faults import Fault, parse_fault
+from protocol.faults import ROBOTS, Fault, parse_fault
 from uav_agent.planning.types import Problem
 from uav_agent.planning.validator import validate
 from uav_agent.recovery import on_goal, replan
@@ -77,7 +77,7 @@ def test_a_stall_is_silent_only_for_its_ticks():
 @pytest.mark.parametrize("text", ["crash:3", "crash:x@1", "stall:1@0:3", "stall:1@2:0", "slip:0.1", "liar"])
 def test_bad_fault_specs_are_one_line(text):
     with pytest.raises(UavRobotsError, match="--fault") as e:
-        parse_fault(text)
+        parse_fault(text, ROBOTS)
     assert "\n" not in str(e.value)
 
 

@@ -9,6 +9,7 @@ from typing import Any
 from protocol.config import add_session_arguments
 from protocol.keys import DEFAULT_FLEET
 from protocol.process import one_command
+from protocol.run_spec import add_spec_argument, apply_spec
 
 MAVSDK_DEFAULT = "udpin://0.0.0.0:14540"
 
@@ -61,6 +62,17 @@ def add_uav_arguments(p: argparse.ArgumentParser) -> None:
                         "(default 0: as fast as the fleet reports)")
     add_camera_source_arguments(p)
     add_planning_arguments(p)
+    add_spec_argument(p)
+
+
+# What the UAV takes from a run's spec (`--spec OUT/run.json`).
+SPEC_FIELDS = {
+    "--robots": lambda s: s.robots, "--seed": lambda s: s.seed, "--camera-source": lambda s: s.camera.source,
+    "--planner": lambda s: s.planning.planner, "--assign": lambda s: s.planning.assign,
+    "--connectivity": lambda s: s.planning.connectivity, "--time-limit": lambda s: s.planning.time_limit_s,
+    "--no-fallback": lambda s: not s.planning.fallback, "--tick-timeout": lambda s: s.limits.tick_timeout_s,
+    "--tick-rate": lambda s: s.limits.tick_rate_hz, "--monitor-every": lambda s: s.limits.monitor_every,
+}
 
 
 def add_camera_source_arguments(p: argparse.ArgumentParser) -> None:
@@ -97,6 +109,7 @@ def uav_command(a: argparse.Namespace) -> int:
     from .progress import Progress
     from .planning.assignment import DEFAULT_ASSIGNMENT
 
+    spec = apply_spec(a, SPEC_FIELDS)
     if a.robots is not None:
         check_fleet(a.robots)
     cfg = MissionConfig(fleet=a.fleet, robots=a.robots, listen=a.listen, connect=a.connect,
@@ -106,7 +119,7 @@ def uav_command(a: argparse.Namespace) -> int:
                         out=Path(a.out) if a.out else None, tick_timeout_s=a.tick_timeout,
                         tick_rate_hz=a.tick_rate,
                         monitor_every=a.monitor_every, observers=max(0, a.observers),
-                        camera=camera_source_config(a))
+                        camera=camera_source_config(a), run=spec.as_dict() if spec is not None else None)
     report = run_mission(cfg, Progress(enabled=not a.quiet))
     if a.summary == "text":
         print(summary(report, cfg.out), flush=True)

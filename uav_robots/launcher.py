@@ -32,7 +32,7 @@ from protocol.keys import format_ids, new_fleet_name
 from protocol.process import die_with_parent
 from protocol.security import robot_identity
 from robot_agents import forked
-from robot_agents.faults import parse_fault
+from protocol.faults import parse_fault
 from sim_world.world import is_world_fault
 
 from . import outputs

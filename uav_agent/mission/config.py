@@ -32,3 +32,4 @@ class MissionConfig:
     # on the 450 floor with a 4000x3000 camera it is also where 3 x 3 images cover it, not 4 x 3.
     min_px_per_cell: float = 19.0
     camera: CameraSourceConfig = field(default_factory=CameraSourceConfig)   # where the images come from
+    run: dict | None = None            # the run's spec (run.json), copied into the report: it repeats the run

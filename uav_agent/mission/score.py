@@ -88,6 +88,7 @@ def fill(ctx: MissionContext, rec: Record | None, outcome: str, reason: str) -> 
         "timings": ctx.clock.timings,
         "processes": {"uav": os.getpid()},
         "fleet": ctx.cfg.fleet,
+        **({"run": ctx.cfg.run} if ctx.cfg.run is not None else {}),
     })
 
 

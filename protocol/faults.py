@@ -1,0 +1,133 @@
+"""The fault catalogue: every fault `--fault SPEC` injects, one row each, named unit.kind as
+MAVSDK's failure plugin names its failures (unit: what fails; kind: how).
+
+A row holds the spec's grammar, its help line and the process that injects it; the process's
+executor gives it its effect (a robot's agent: `robot_agents/agent.py`; the world's move judge:
+`sim_world`). Adding a fault kind is one row here plus its executor there.
+
+    robot.crash  crash:ROBOT@TICK        the robot dies when tick TICK arrives
+    robot.stall  stall:ROBOT@TICK:TICKS  from tick TICK it neither moves nor reports, TICKS ticks long
+    robot.liar   liar:ROBOT              it raises Done as soon as it has a plan, then never moves or reports
+    world.slip   slip:P                  any move ends elsewhere with probability P
+    world.skid   skid:ROBOT@TICK         from tick TICK every move of the robot ends elsewhere
+
+Ticks count the UAV's clock (the `k` of `Tick`), so a stall ends when the rest of the fleet
+has moved on that far, however long the UAV held it.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from .errors import UavRobotsError
+
+ROBOTS, WORLD = "robots", "world"   # the processes that inject faults
+
+
+@dataclass(frozen=True)
+class FaultKind:
+    unit: str
+    kind: str
+    form: str          # the spec's grammar, as a person writes it
+    pattern: str       # the same, as a regular expression with named fields
+    injector: str      # ROBOTS or WORLD
+    help: str
+
+    @property
+    def name(self) -> str:
+        return f"{self.unit}.{self.kind}"
+
+
+_INT, _PROB = r"\d+", r"[0-9.eE+-]+"
+CATALOGUE: tuple[FaultKind, ...] = (
+    FaultKind("robot", "crash", "crash:ROBOT@TICK", rf"crash:(?P<robot>{_INT})@(?P<tick>{_INT})", ROBOTS,
+              "the robot dies at that tick"),
+    FaultKind("robot", "stall", "stall:ROBOT@TICK:TICKS",
+              rf"stall:(?P<robot>{_INT})@(?P<tick>{_INT}):(?P<ticks>{_INT})", ROBOTS,
+              "it stops moving and reporting that long"),
+    FaultKind("robot", "liar", "liar:ROBOT", rf"liar:(?P<robot>{_INT})", ROBOTS,
+              "it raises Done at its start and stops"),
+    FaultKind("world", "slip", "slip:P", rf"slip:(?P<p>{_PROB})", WORLD,
+              "any move ends elsewhere with probability P"),
+    FaultKind("world", "skid", "skid:ROBOT@TICK", rf"skid:(?P<robot>{_INT})@(?P<tick>{_INT})", WORLD,
+              "from that tick every move of the robot does: it keeps deviating"),
+)
+KINDS = {k.kind: k for k in CATALOGUE}
+
+
+@dataclass(frozen=True)
+class Fault:
+    kind: str
+    robot: int | None = None
+    tick: int = 0
+    ticks: int = 0
+    p: float = 0.0
+
+    @property
+    def row(self) -> FaultKind:
+        return KINDS[self.kind]
+
+    @property
+    def injector(self) -> str:
+        return self.row.injector
+
+    def __str__(self) -> str:
+        return (self.row.form.replace("ROBOT", str(self.robot)).replace("TICKS", str(self.ticks))
+                .replace("TICK", str(self.tick)).replace("P", f"{self.p:g}"))
+
+    def silent_at(self, k: int) -> bool:
+        """True while the robot must neither move nor report at tick k."""
+        if self.kind == "liar":
+            return True
+        if self.kind == "stall":
+            return self.tick <= k < self.tick + self.ticks
+        return False
+
+
+def usage(injector: str | None = None) -> str:
+    """The grammars of the faults `injector` takes (every fault's if None), as one line."""
+    forms = [k.form for k in CATALOGUE if injector in (None, k.injector)]
+    return ", ".join(forms[:-1]) + " or " + forms[-1]
+
+
+def help_line() -> str:
+    """`--fault`'s help: each row's grammar and what it does, the robots' then the world's."""
+    robots = ", ".join(f"{k.form} ({k.help})" for k in CATALOGUE if k.injector == ROBOTS)
+    world = ", ".join(f"{k.form} ({k.help})" for k in CATALOGUE if k.injector == WORLD)
+    return f"inject a fault (repeatable): {robots}; the world's: {world}"
+
+
+def parse_fault(text: str, injector: str | None = None) -> Fault:
+    """One fault spec; with `injector`, only a fault that process injects. One line for a bad one."""
+    spec = text.strip()
+    for row in CATALOGUE:
+        if injector not in (None, row.injector):
+            continue
+        m = re.fullmatch(row.pattern, spec)
+        if m is None:
+            continue
+        fields = m.groupdict()
+        if "p" in fields:
+            try:
+                p = float(fields["p"])
+            except ValueError:
+                p = -1.0
+            if not 0.0 <= p <= 1.0:
+                raise UavRobotsError(f"--fault {text!r}: {row.form} takes P in [0, 1]")
+            return Fault(row.kind, p=p)
+        nums = {k: int(v) for k, v in fields.items()}
+        if "tick" in nums and nums["tick"] < 1:
+            raise UavRobotsError(f"--fault {text!r}: ticks start at 1")
+        if "ticks" in nums and nums["ticks"] < 1:
+            raise UavRobotsError(f"--fault {text!r}: a stall lasts at least one tick")
+        return Fault(row.kind, **nums)
+    raise UavRobotsError(f"--fault {text!r}: give {usage(injector)}")
+
+
+def split_faults(specs: list[str]) -> dict[str, list[Fault]]:
+    """Specs by the process that injects them: {ROBOTS: [...], WORLD: [...]} (both keys always there)."""
+    out: dict[str, list[Fault]] = {ROBOTS: [], WORLD: []}
+    for spec in specs:
+        f = parse_fault(spec)
+        out[f.injector].append(f)
+    return out

@@ -1,0 +1,91 @@
+"""The run spec (run.json) and the fault catalogue: one record of a run's configuration, read back
+exactly; every fault kind one row, its grammar round-tripped; bad input one line."""
+from __future__ import annotations
+
+import argparse
+import json
+
+import pytest
+from hypothesis import given, strategies as st
+
+from protocol.errors import UavRobotsError
+from protocol.faults import CATALOGUE, ROBOTS, WORLD, Fault, help_line, parse_fault, split_faults, usage
+from protocol.run_spec import (CameraSpec, LimitsSpec, PlanningSpec, RunSpec, VehicleSpec, add_spec_argument,
+                               apply_spec, given_flags, read_spec, spec_from_dict)
+
+
+def a_spec() -> RunSpec:
+    return RunSpec(map="warehouse-450", robots=50, seed=7, camera=CameraSpec("mavlink", "ideal,blur_sigma=2"),
+                   vehicle=VehicleSpec(preset="indoor", time_scale=5.0), faults=("crash:3@10", "slip:0.05"),
+                   planning=PlanningSpec(planner="pibt", assign="greedy", connectivity=8, time_limit_s=30.0,
+                                         fallback=False),
+                   limits=LimitsSpec(tick_timeout_s=4.0, monitor_every=0))
+
+
+def test_a_spec_is_read_back_exactly(tmp_path):
+    spec = a_spec()
+    (tmp_path / "run.json").write_text(spec.to_json())
+    assert read_spec(tmp_path / "run.json") == spec
+    assert json.loads(spec.to_json())["format"] == "uav-robots-run/1"
+
+
+@pytest.mark.parametrize("change, named", [
+    ({"robots": "8"}, "robots"),
+    ({"planning": {"connectivity": 4.5}}, "planning.connectivity"),
+    ({"camera": {"lens": "fisheye"}}, "lens"),
+    ({"faults": ["fly:1"]}, "--fault 'fly:1'"),
+    ({"format": "something/2"}, "format"),
+    ({"colour": "red"}, "colour"),
+])
+def test_a_bad_spec_is_one_line_naming_the_field(tmp_path, change, named):
+    data = {**a_spec().as_dict(), **change}
+    with pytest.raises(UavRobotsError) as e:
+        spec_from_dict(data)
+    assert named in str(e.value) and "\n" not in str(e.value)
+
+
+def test_a_spec_that_is_not_json_is_one_line(tmp_path):
+    (tmp_path / "run.json").write_text("{not json")
+    with pytest.raises(UavRobotsError, match="not JSON") as e:
+        read_spec(tmp_path / "run.json")
+    assert "\n" not in str(e.value)
+
+
+def test_the_spec_fills_what_the_command_line_did_not_give(tmp_path):
+    (tmp_path / "run.json").write_text(a_spec().to_json())
+    p = argparse.ArgumentParser()
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--connectivity", type=int, default=4)
+    add_spec_argument(p)
+    argv = ["--spec", str(tmp_path / "run.json"), "--connectivity=4"]
+    args = p.parse_args(argv)
+    args.given_flags = given_flags(argv)
+    fields = {"--seed": lambda s: s.seed, "--connectivity": lambda s: s.planning.connectivity}
+    assert apply_spec(args, fields) == a_spec()
+    assert (args.seed, args.connectivity) == (7, 4)     # the spec's seed; the flag given wins
+
+
+def test_every_fault_kind_is_one_row_named_unit_dot_kind():
+    names = [k.name for k in CATALOGUE]
+    assert names == ["robot.crash", "robot.stall", "robot.liar", "world.slip", "world.skid"]
+    assert all(k.form in help_line() and k.help in help_line() for k in CATALOGUE)
+    assert usage(ROBOTS) == "crash:ROBOT@TICK, stall:ROBOT@TICK:TICKS or liar:ROBOT"
+
+
+@given(kind=st.sampled_from(CATALOGUE), robot=st.integers(0, 999), tick=st.integers(1, 10**6),
+       ticks=st.integers(1, 1000), p=st.sampled_from([0.0, 0.05, 0.5, 1.0]))
+def test_every_fault_spec_round_trips(kind, robot, tick, ticks, p):
+    text = (kind.form.replace("ROBOT", str(robot)).replace("TICKS", str(ticks)).replace("TICK", str(tick))
+            .replace("P", f"{p:g}"))
+    fault = parse_fault(text)
+    assert str(fault) == text and fault.injector == kind.injector and fault.kind == kind.kind
+
+
+def test_faults_go_to_the_process_that_injects_them():
+    split = split_faults(["crash:1@5", "slip:0.1", "skid:2@3", "liar:0"])
+    assert split[ROBOTS] == [Fault("crash", 1, 5), Fault("liar", 0)]
+    assert split[WORLD] == [Fault("slip", p=0.1), Fault("skid", 2, 3)]
+    with pytest.raises(UavRobotsError, match="give crash:ROBOT@TICK, stall:ROBOT@TICK:TICKS or liar:ROBOT"):
+        parse_fault("slip:0.1", ROBOTS)
+    with pytest.raises(UavRobotsError, match="P in \\[0, 1\\]"):
+        parse_fault("slip:1.5")
