@@ -14,7 +14,7 @@ from protocol.transport import MemoryBus, MemoryTransport
 from scenes import open_map
 from sim_world.world import World, WorldConfig
 from uav_agent.fleet import FleetLink
-from uav_robots.bench_ticks import Children, _endpoint, _hub, lanes, write_scen
+from uav_robots.bench.lockstep import Children, _endpoint, _hub, lanes, write_scen
 
 T = 20.0
 
