@@ -38,5 +38,6 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     return command_main(build_parser, argv)
 
+
 if __name__ == "__main__":
     sys.exit(main())

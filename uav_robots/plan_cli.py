@@ -179,5 +179,3 @@ def cmd_build(args) -> int:
     print("compiling the planner kernels ahead of time (about a minute on two cores, half that when numba "
           "has compiled them already)...", flush=True)
     return aot.build_once()
-
-
