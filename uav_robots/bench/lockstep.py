@@ -30,6 +30,8 @@ from protocol.errors import MissionError
 from protocol.keys import Keys, format_ids, new_fleet_name
 from protocol.process import die_with_parent
 
+from ..common.robot_groups import robot_groups
+
 MOVES = ("ahead", "query")   # robot_agents --moves
 SPAN = 8                 # cells of a robot's lane: it walks SPAN steps one way, then back
 WARMUP_TICKS = 10        # not timed: the first ticks open publishers and fill caches
@@ -67,10 +69,6 @@ def write_scen(lane: Lanes, ticks: int, path: Path) -> None:
         gx, gy = lane.cell(r, ticks)
         lines.append(f"0\tlanes\t{lane.width}\t{lane.height}\t{x}\t{y}\t{gx}\t{gy}\t0")
     path.write_text("\n".join(lines) + "\n")
-
-
-def hosting(n: int, per_process: int) -> list[list[int]]:
-    return [list(range(i, min(n, i + per_process))) for i in range(0, n, per_process)]
 
 
 # ----------------------------------------------------------------- processes
@@ -114,12 +112,12 @@ class Children:
                 p.wait(5)
 
 
-def _hub(endpoint: str):
+def open_hub(endpoint: str):
     from protocol.transport import open_session
     return open_session("bench", listen=[endpoint])
 
 
-def _endpoint() -> str:
+def local_endpoint() -> str:
     from ..common.ports import free_port
     return f"tcp/127.0.0.1:{free_port()}"
 
@@ -149,17 +147,17 @@ def run_mission(n: int, per_process: int, ticks: int, tmp: Path, moves: str = "a
     lane = lanes(n)
     scen = tmp / f"lanes-{n}.scen"
     write_scen(lane, ticks, scen)
-    fleet, endpoint = new_fleet_name(), _endpoint()
+    fleet, endpoint = new_fleet_name(), local_endpoint()
     keys = Keys(fleet)
     kids = Children()
-    with _hub(endpoint) as hub:
+    with open_hub(endpoint) as hub:
         fl = FleetLink(hub, keys)
         try:
             common = ["--fleet", fleet, "--connect", endpoint]
             kids.spawn("sim_world", [*common, "--map", f"random:width={lane.width},height={lane.height},density=0",
                                      "--robots", str(n), "--scen", str(scen), "--mavlink", "none",
                                      "--camera", "ideal,width=64,height=48"], tmp / f"world-{n}.log")
-            for g in hosting(n, per_process):
+            for g in robot_groups(n, per_process):
                 kids.spawn("robot_agents", [*common, "--ids", format_ids(g), "--moves", moves], tmp / f"robots-{n}-{g[0]}.log")
             ids = list(range(n))
             fl.wait_until(lambda: fl.world_alive and len(fl.alive) == n, READY_TIMEOUT_S,
@@ -209,7 +207,7 @@ def run_mission(n: int, per_process: int, ticks: int, tmp: Path, moves: str = "a
 
 def run_barrier(processes: int, ticks: int, tmp: Path) -> Measured:
     """The ceiling: `processes` echo processes, one put each per tick, nothing decoded."""
-    fleet, endpoint = new_fleet_name(), _endpoint()
+    fleet, endpoint = new_fleet_name(), local_endpoint()
     keys = Keys(fleet)
     kids = Children()
     cv = threading.Condition()
@@ -237,7 +235,7 @@ def run_barrier(processes: int, ticks: int, tmp: Path) -> Measured:
                     raise MissionError(kids.dead() or f"bare barrier: {what} within {timeout:g} s")
                 cv.wait(min(left, 0.5))
 
-    with _hub(endpoint) as hub:
+    with open_hub(endpoint) as hub:
         hub.subscribe(f"{keys.prefix}/bench/ack/*", on_ack)
         hub.watch_alive(f"{keys.prefix}/bench/alive/*", on_alive)
         try:

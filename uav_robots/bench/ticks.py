@@ -13,8 +13,9 @@ from pathlib import Path
 
 from protocol.errors import MissionError, UavRobotsError
 
+from ..common.robot_groups import robot_groups
 from .common import markdown_table, parse_sizes, print_now, save_results
-from .lockstep import MOVES, WARMUP_TICKS, hosting, run_barrier, run_mission
+from .lockstep import MOVES, WARMUP_TICKS, run_barrier, run_mission
 
 
 def _ms(v: float | None) -> str:
@@ -33,7 +34,7 @@ def _load() -> str:
 
 
 def _hosting_text(n: int, per_process: int) -> str:
-    groups = len(hosting(n, per_process))
+    groups = len(robot_groups(n, per_process))
     return "one process per robot" if per_process == 1 else f"{groups} pool(s) of up to {per_process}"
 
 
@@ -62,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
         tmp = Path(tmp_s)
         for n in sizes:
             for per in hostings_for(n, args.max_processes, args.pools):
-                procs = len(hosting(n, per))
+                procs = len(robot_groups(n, per))
                 missions = {}
                 for mode in modes:
                     print_now(f"{n} robots, {_hosting_text(n, per)}, moves {mode}: mission ...")
