@@ -15,7 +15,7 @@ from .launcher import Child, Launcher
 
 
 def finish(args, launcher: "Launcher", uav: Child | None, code: int, samples: list, ahead, view, free,
-            t0: float) -> int:
+           t0: float) -> int:
     """Everything stopped: the report (this run's UAV's with the launcher's additions, or the launcher's
     own), the recording, the video, report.html; each one written whole, or named in one line."""
     from protocol.mapfile import format_rows
