@@ -20,7 +20,7 @@ from protocol.geo import ned_to_geo
 from sim_world.pose_follower import PoseFollower, check_pose_url, parse_origin, pymavlink_url
 from sim_world.pose_track import BootClock, FloorFrame, Track, Truth
 from sim_world.vehicle import Vehicle, VehicleConfig
-from uav_robots.launcher import mavsdk_url
+from uav_robots.run.launcher import mavsdk_url
 
 from mavlink_gcs import Client, wait_for
 

@@ -1,5 +1,5 @@
 """`uav-robots bench faults` judges each scenario from its own report and the world's record."""
-from uav_robots.bench_faults import judge, scenarios, table
+from uav_robots.bench.faults import judge, scenarios, table
 
 
 def _report(outcome="completed", collisions=0, verified=None):

@@ -421,7 +421,7 @@ def test_a_frame_with_cells_far_over_the_needed_resolution_is_read_smaller_and_t
     from sim_world.world import DRONE_CAMERA
     from uav_agent.perception import Fusion, frames
     from uav_agent.survey import survey_poses
-    from uav_robots.bench_perception import bench_scene, landmarks_of, score
+    from uav_robots.bench.perception import bench_scene, landmarks_of, score
 
     model = CameraModel(**{**DRONE_CAMERA, **PRESETS["realistic"]})
     scene = bench_scene("warehouse-small", 8, model)

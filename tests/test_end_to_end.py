@@ -74,7 +74,7 @@ def test_default_mission(tmp_path):
     assert reg["by_landmarks"] >= 1 and reg["reprojection_px_max"] < 2.5
     for name in ("overhead.png", "paths.png", "replay.gif"):
         assert (tmp_path / name).stat().st_size > 1000
-    # The video, drawn while the vehicle landed (uav_robots/video_ahead.py), has a frame per tick,
+    # The video, drawn while the vehicle landed (uav_robots/record/video_ahead.py), has a frame per tick,
     # and no draft is left beside it.
     import cv2
 

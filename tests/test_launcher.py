@@ -6,7 +6,7 @@ import time
 import pytest
 
 from uav_robots.cli import build_parser
-from uav_robots.launcher import Child, Launcher
+from uav_robots.run.launcher import Child, Launcher
 
 
 @pytest.fixture
@@ -48,7 +48,7 @@ def test_robots_are_forked_processes_with_their_own_logs_sessions_and_exit_codes
 
     from protocol.transport import zenoh_config
     from robot_agents import forked
-    from uav_robots.launcher import free_port
+    from uav_robots.common.ports import free_port
 
     if not forked.available():
         pytest.skip("no forkserver on this platform")

@@ -31,7 +31,10 @@ def test_the_floors_hold():
     ("protocol/keys.py", "import sim_world.world", "floors"),
     ("sim_world/moves.py", "from uav_agent import fleet", "floors"),
     ("robot_agents/robot.py", "import scenarios.maps", "a robot process imports nothing but the protocol"),
-    ("uav_agent/fleet.py", "import uav_robots.launcher", "floors"),
+    ("uav_agent/fleet.py", "import uav_robots.run.launcher", "floors"),
+    ("uav_robots/view/state.py", "import uav_robots.record.recording", "wings"),
+    ("uav_robots/secure/fleet.py", "import uav_robots.bench.secure", "wings"),
+    ("uav_robots/record/observer.py", "import uav_robots.secure.fleet", "wings"),
 ])
 def test_a_backward_import_breaks_the_contract(tmp_path, file, line, broken):
     for pkg in PACKAGES:
@@ -42,6 +45,30 @@ def test_a_backward_import_breaks_the_contract(tmp_path, file, line, broken):
     run = _lint(tmp_path)
     assert run.returncode == 1, run.stdout[-3000:] + run.stderr[-2000:]
     assert re.search(re.escape(broken) + r".*BROKEN", run.stdout.replace("\n", " ")), run.stdout[-3000:]
+
+
+def _circles(package: str) -> list[tuple[str, str]]:
+    """Each direct import a -> b whose b leads back to a: one edge of an import circle."""
+    import grimp
+
+    graph = grimp.build_graph(package, cache_dir=None)
+    return sorted((a, b) for a in graph.modules for b in graph.find_modules_directly_imported_by(a)
+                  if graph.chain_exists(importer=b, imported=a))
+
+
+def test_the_command_has_no_import_circle():
+    assert _circles("uav_robots") == []
+
+
+def test_an_import_circle_is_found(tmp_path, monkeypatch):
+    pkg = tmp_path / "circled"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from . import b\n")
+    (pkg / "b.py").write_text("def f():\n    from . import a\n")
+    (pkg / "c.py").write_text("from . import a\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert _circles("circled") == [("circled.a", "circled.b"), ("circled.b", "circled.a")]
 
 
 # A path that starts at the root of one machine's file system: its home, a workspace, a mount.

@@ -21,7 +21,7 @@ from protocol.messages import (MARGIN_BYTES, MAX_MESSAGE_BYTES, MESSAGE_TYPES, M
                                bound, decode, encode, json_limit, unwrap, wire_fields)
 from scenarios.limits import MAX_FLEET, MAX_FLOOR_CELLS, check_floor
 from scenarios.maps import NAMED, resolve_map
-from uav_robots.secure_cli import MANIFEST, new_fleet, read_fleet_dir
+from uav_robots.secure.fleet import MANIFEST, new_fleet, read_fleet_dir
 
 REPO = Path(__file__).resolve().parents[1]
 FUZZ = settings(max_examples=200, deadline=None, derandomize=True,

@@ -14,7 +14,7 @@ from protocol.transport import MemoryBus, MemoryTransport
 from scenes import open_map
 from sim_world.world import World, WorldConfig
 from uav_agent.fleet import FleetLink
-from uav_robots.bench_ticks import Children, _endpoint, _hub, lanes, write_scen
+from uav_robots.bench.lockstep import Children, lanes, local_endpoint, open_hub, write_scen
 
 T = 20.0
 
@@ -23,7 +23,7 @@ def _start(n: int, groups: list[tuple[list[int], str]], ticks: int, tmp: Path):
     lane = lanes(n)
     scen = tmp / "lanes.scen"
     write_scen(lane, ticks, scen)
-    fleet, endpoint = new_fleet_name(), _endpoint()
+    fleet, endpoint = new_fleet_name(), local_endpoint()
     kids = Children()
     common = ["--fleet", fleet, "--connect", endpoint]
     kids.spawn("sim_world", [*common, "--map", f"random:width={lane.width},height={lane.height},density=0",
@@ -48,7 +48,7 @@ def test_a_mixed_fleet_with_a_replan_between_ticks(tmp_path, batch_states):
     ids = list(range(n))
     # After the switch every robot walks back the way it came: a plan its old moves contradict.
     back = {r: [lane.cell(r, switch - i) for i in range(switch + 1)] for r in ids}
-    with _hub(endpoint) as hub:
+    with open_hub(endpoint) as hub:
         fl = FleetLink(hub, keys)
         try:
             fl.wait_until(lambda: fl.world_alive and len(fl.alive) == n, T,
@@ -83,7 +83,7 @@ def test_a_mixed_fleet_with_a_replan_between_ticks(tmp_path, batch_states):
 def test_a_tick_for_another_plan_makes_an_ahead_robot_stay(tmp_path):
     """A robot that missed the Tick's plan: its move put ahead under its own plan is judged a stay."""
     lane, keys, endpoint, kids = _start(2, [([0], "ahead"), ([1], "ahead")], 6, tmp_path)
-    with _hub(endpoint) as hub:
+    with open_hub(endpoint) as hub:
         fl = FleetLink(hub, keys)
         try:
             fl.wait_until(lambda: fl.world_alive and len(fl.alive) == 2, T, lambda: _logs(tmp_path), kids.dead)

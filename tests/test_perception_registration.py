@@ -19,7 +19,7 @@ from scenarios.landmarks import place_landmarks
 from scenarios.maps import place, resolve_map
 from sim_world.camera import PRESETS, CameraModel, Scene, encode_frame, render
 from uav_agent.perception import Landmarks, perceive
-from uav_robots.bench_perception import TARGET, bench_scene, landmarks_of, score, simulate
+from uav_robots.bench.perception import TARGET, bench_scene, landmarks_of, score, simulate
 from uav_agent.perception.frames import distortion, intrinsics
 from uav_agent.perception.fusion import prepare
 from uav_agent.perception.registration import homography

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from uav_agent.perception.relook import MAX_HOVERS, closer_look, hover_points, plan_round
-from uav_robots.bench_perception import bench_scene, score, simulate
+from uav_robots.bench.perception import bench_scene, score, simulate
 from sim_world.camera import PRESETS, CameraModel
 
 CAMERA = SimpleNamespace(width=1280, height=960, fx=640.0, fy=640.0)

@@ -5,8 +5,8 @@ import time
 
 from protocol.keys import Keys
 from protocol.messages import MissionStatus, Plan, RobotState, StateBatch, Tick, encode
-from uav_robots.observer import Sample
-from uav_robots.recording import drawn_recording, read_mcap, write_mcap
+from uav_robots.record.observer import Sample
+from uav_robots.record.recording import drawn_recording, read_mcap, write_mcap
 
 
 def test_garbage_or_forged_bytes_on_fleet_keys_are_left_out_and_the_rest_is_replayable(tmp_path):

@@ -20,7 +20,7 @@ from protocol.messages import (Done, MissionEnd, MoveRequest, MoveResult, Plan, 
                                WorldInfoRequest, decode, encode)
 from protocol.transport import ZenohTransport, open_session
 from test_world_service import mem_world  # noqa: F401 - the fixture: a world on an in-memory bus
-from uav_robots.secure_cli import make_fleet_dir, new_fleet, read_fleet_dir
+from uav_robots.secure.fleet import make_fleet_dir, new_fleet, read_fleet_dir
 
 REPO = Path(__file__).resolve().parents[1]
 WAIT_S = 3.0
@@ -285,7 +285,7 @@ def test_run_secure_uses_a_secure_init_directory_and_cleans_a_temporary_one(tmp_
 @pytest.mark.slow
 def test_the_cost_bench_runs_a_lockstep_barrier_both_ways(tmp_path):
     """`uav-robots bench secure`'s transport part: ticks out and states back through the ACL'd router."""
-    from uav_robots.secure_bench import barrier_rate
+    from uav_robots.bench.secure import barrier_rate
 
     assert barrier_rate(3, 20, None) > 0
     assert barrier_rate(3, 20, tmp_path / "s") > 0

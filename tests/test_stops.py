@@ -199,8 +199,8 @@ def test_a_forged_tick_during_a_mission_costs_no_long_video(tmp_path):
 
 
 def _forged_recording(out: Path, with_report: bool) -> None:
-    from uav_robots.observer import Sample
-    from uav_robots.recording import write_mcap
+    from uav_robots.record.observer import Sample
+    from uav_robots.record.recording import write_mcap
 
     keys = Keys("forged")
     t = time.time_ns()
@@ -228,9 +228,9 @@ def test_replay_draws_up_to_the_missions_last_tick_whatever_a_message_claims(tmp
 
 def test_the_launchers_views_are_bounded_by_the_report(tmp_path):
     """write_views as the launcher calls it after a mission: the video stops at the report's ticks."""
-    from uav_robots.launcher import write_views
-    from uav_robots.observer import Sample
-    from uav_robots.recording import read_mcap
+    from uav_robots.record.after_mission import write_views
+    from uav_robots.record.observer import Sample
+    from uav_robots.record.recording import read_mcap
 
     keys = Keys("forged")
     samples = [Sample(1, keys.plan(0), encode(Plan(robot=0, plan_id="p", path=[(0, 0), (1, 0)], goal=(1, 0)))),
@@ -243,7 +243,7 @@ def test_the_launchers_views_are_bounded_by_the_report(tmp_path):
 
 
 def test_report_json_is_written_whole_or_not_at_all(tmp_path):
-    from uav_robots.outputs import write_atomic
+    from uav_robots.common.outputs import write_atomic
 
     path = tmp_path / "report.json"
     write_atomic(path, '{"a": 1}')
@@ -314,8 +314,8 @@ def test_the_draft_video_stops_at_the_plans_last_tick_and_is_kept_only_for_the_s
 
     from protocol.mapfile import format_rows
     from protocol.messages import MissionStatus
-    from uav_robots.observer import Sample
-    from uav_robots.video_ahead import VideoAhead
+    from uav_robots.record.observer import Sample
+    from uav_robots.record.video_ahead import VideoAhead
 
     class Feed:
         def __init__(self, samples):
@@ -342,9 +342,9 @@ def test_the_draft_video_stops_at_the_plans_last_tick_and_is_kept_only_for_the_s
 
 def test_a_uav_deaf_to_sigterm_is_killed_after_the_bound_or_at_a_second_signal(tmp_path, monkeypatch):
     """The stop is bounded: UAV_STOP_S after SIGTERM the UAV is killed; a second Ctrl-C stops waiting."""
-    from uav_robots import launcher as launcher_module
+    from uav_robots.run import launcher as launcher_module
     from uav_robots.cli import build_parser
-    from uav_robots.launcher import Child, Launcher
+    from uav_robots.run.launcher import Child, Launcher
 
     deaf = ("import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); print('up', flush=True); "
             "time.sleep(120)")

@@ -16,7 +16,7 @@ from robot_agents.agent import run_robots
 from sim_world.world import World, WorldConfig
 from scenes import open_map
 from uav_agent.fleet import FleetLink
-from uav_robots.bench_ticks import lanes
+from uav_robots.bench.lockstep import lanes
 
 REPO = Path(__file__).resolve().parents[1]
 T = 5.0
@@ -115,9 +115,9 @@ def test_bench_ticks_bad_input_is_one_line():
 
 
 def test_the_live_view_and_the_recording_read_a_pools_batch(tmp_path):
-    from uav_robots.observer import Sample
-    from uav_robots.recording import read_mcap, write_mcap
-    from uav_robots.view_state import FleetView
+    from uav_robots.record.observer import Sample
+    from uav_robots.record.recording import read_mcap, write_mcap
+    from uav_robots.view.state import FleetView
 
     keys = Keys("v")
     batch = encode(StateBatch(tick=4, states=[(0, (2, 1), "stepping", "p", ""), (1, (3, 1), "done", "p", "")]))

@@ -8,10 +8,10 @@ import numpy as np
 
 from protocol.keys import Keys
 from protocol.messages import MissionStatus, encode
-from uav_robots.observer import Sample
+from uav_robots.record.observer import Sample
 from protocol.mapfile import format_rows
-from uav_robots.recording import drawn
-from uav_robots.video_ahead import DRAFT_VIDEO, VideoAhead
+from uav_robots.record.recording import drawn
+from uav_robots.record.video_ahead import DRAFT_VIDEO, VideoAhead
 
 FLEET = "f1"
 

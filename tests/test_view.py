@@ -13,9 +13,9 @@ import pytest
 
 from scenarios.maps import place, resolve_map
 from uav_agent.report import load_report
-from uav_robots import replay
-from uav_robots.recording import Recording, read_mcap
-from uav_robots.report_html import arrived_per_tick, compare
+from uav_robots.record import replay
+from uav_robots.record.recording import Recording, read_mcap
+from uav_robots.record.report_html import arrived_per_tick, compare
 
 CLI = [sys.executable, "-m", "uav_robots"]
 CHROMIUM = next((p for p in (shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome")) if p), None)
@@ -260,7 +260,7 @@ def test_recorded_mission_in_the_view(recorded):
 def test_a_view_client_gets_what_changed_since_its_last_update():
     from protocol.keys import Keys
     from protocol.messages import MissionEvent, Plan, RobotState, encode
-    from uav_robots.view_state import FleetView, Seen
+    from uav_robots.view.state import FleetView, Seen
 
     k, view = Keys("f1"), FleetView()
     for rid, (a, b) in enumerate([((1, 1), (3, 1)), ((5, 5), (5, 6))]):
@@ -285,7 +285,7 @@ def test_a_view_client_gets_what_changed_since_its_last_update():
 def test_the_view_moves_the_drone_with_its_pose_feed():
     from protocol.keys import Keys
     from protocol.messages import CameraFrame, VehiclePose, encode
-    from uav_robots.view_state import FleetView, Seen
+    from uav_robots.view.state import FleetView, Seen
 
     k, view, seen = Keys("f1"), FleetView(), Seen()
     frame = CameraFrame(width=2, height=2, fx=1.0, fy=1.0, cx=1.0, cy=1.0, north_m=-1.0, east_m=1.0, down_m=-5.0,

@@ -1,55 +1,14 @@
-"""`uav-robots plan` and `uav-robots bench`: planning alone, no processes, no drone.
-
-`uav_robots.cli` registers them with `add_plan_parser(sub)` / `add_bench_parser(sub)`.
-"""
+"""`uav-robots plan` and `uav-robots build`: planning alone, no processes, no drone; the planners compiled
+ahead of time."""
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 from protocol.errors import UavRobotsError
 
-
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be positive")
-    return v
-
-
-def _seconds(text: str) -> float:
-    """A finite, non-negative number of seconds (0: off)."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not 0 <= v < float("inf"):
-        raise argparse.ArgumentTypeError(f"{text!r} must be a finite number of seconds, 0 or more")
-    return v
-
-
-REFINE_HELP = ("then improve the plan for up to S more seconds by large-neighbourhood search (MAPF-LNS), "
-               "within --time-limit; stops at once when no robot is delayed (default 0: off)")
-
-
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} must be at least 1")
-    return v
-
-
-def _fail(exc: Exception) -> int:
-    sys.stderr.write(f"error: {exc}\n")
-    return 2
+from .common.arguments import REFINE_HELP, fail, positive_float, positive_int, seconds
 
 
 # ---------------------------------------------------------------------------- plan
@@ -68,8 +27,8 @@ def add_plan_parser(subparsers) -> argparse.ArgumentParser:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--scen", help="a MovingAI .scen file: robots start and goal cells; with a shipped "
                                     "MovingAI map's name as --map, also its scenario's name (random-1, even-3)")
-    src.add_argument("--robots", type=_positive_int, help="place N robots and N goals at random (seeded)")
-    p.add_argument("--agents", type=_positive_int, help="with --scen: use the first N agents (default all)")
+    src.add_argument("--robots", type=positive_int, help="place N robots and N goals at random (seeded)")
+    p.add_argument("--agents", type=positive_int, help="with --scen: use the first N agents (default all)")
     p.add_argument("--seed", type=int, default=0, help="placement, random map and planner seed (default 0)")
     p.add_argument("--out", required=True, help="the plan file to write (JSON, uav-robots-plan/1)")
     # Not argparse choices: an unknown name gets the same one-line error as any bad input.
@@ -78,10 +37,10 @@ def add_plan_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--assign", choices=list(ASSIGNERS),
                    help="goal assignment (default: none with --scen, optimal with --robots)")
     p.add_argument("--connectivity", type=int, choices=(4, 8), default=4)
-    p.add_argument("--time-limit", type=_positive_float, default=60.0, help="seconds for the whole plan (default 60)")
+    p.add_argument("--time-limit", type=positive_float, default=60.0, help="seconds for the whole plan (default 60)")
     p.add_argument("--no-fallback", action="store_true",
                    help="fail instead of falling back to the default planner when an incomplete one fails")
-    p.add_argument("--refine", type=_seconds, default=0.0, metavar="S", help=REFINE_HELP)
+    p.add_argument("--refine", type=seconds, default=0.0, metavar="S", help=REFINE_HELP)
     p.set_defaults(func=cmd_plan)
     return p
 
@@ -124,7 +83,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
             result = plan_mission(free, starts, goals, refine_s=args.refine, **options)
         write_plan(args.out, result, free, map_name=name)
     except UavRobotsError as exc:
-        return _fail(exc)
+        return fail(exc)
     _print_plan(name, free.shape, result, t_load, args.out)
     return 0
 
@@ -195,7 +154,7 @@ def _print_plan(name, shape, result, t_load: float, out: str) -> None:
     console.print(f"wrote {out}", markup=False)
 
 
-# ---------------------------------------------------------------------------- bench
+# ---------------------------------------------------------------------------- build
 
 def add_build_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
@@ -220,105 +179,3 @@ def cmd_build(args) -> int:
     print("compiling the planner kernels ahead of time (about a minute on two cores, half that when numba "
           "has compiled them already)...", flush=True)
     return aot.build_once()
-
-
-def add_bench_parser(subparsers) -> argparse.ArgumentParser:
-    from uav_agent.planning.assignment import ASSIGNERS
-    from uav_agent.planning.registry import DEFAULT_PLANNER, PLANNERS
-
-    from .bench import PAPER_SIZES
-    p = subparsers.add_parser("bench", help="benchmarks: the paper's Table 2 and MovingAI instances",
-                              description="Run the planning benchmarks; writes a markdown table and CSV files.")
-    sub = p.add_subparsers(dest="bench", metavar="{paper,movingai,command,secure,perception,ticks,mission}", required=True)
-
-    def common(q: argparse.ArgumentParser, limit: float) -> None:
-        q.add_argument("--time-limit", type=_positive_float, default=limit,
-                       help=f"seconds per instance (default {limit:g}); a worker is killed past it plus a margin")
-        q.add_argument("--connectivity", type=int, choices=(4, 8), default=4)
-        q.add_argument("--data", metavar="DIR",
-                       help="a benchmark data directory laid out like scenarios/data/ (default: the data "
-                            "shipped with the package; the 10,000-agent scenario needs --data)")
-        q.add_argument("--out", default="bench-out", help="directory for the markdown and CSV (default bench-out/)")
-        q.add_argument("--cold-cache", dest="warm_cache", action="store_false",
-                       help="compile into an empty numba cache, so the warm-up measures the cold compile "
-                            "(default: the normal on-disk cache, whose warm-up is a cache load)")
-
-    pp = sub.add_parser("paper", help="the paper's Table 2 on the 450x450 warehouse",
-                        description="The paper's Table 2 re-run: the first N agents of warehouse-450-random-1, "
-                                    "goals assigned by each pipeline, the paper's figures beside ours.")
-    pp.add_argument("--sizes", default=",".join(map(str, PAPER_SIZES)), help="robot counts (comma-separated)")
-    pp.add_argument("--pipelines", default="paper-astar,paper-prm,default",
-                    help=f"comma-separated: {', '.join(PLANNERS)}, or default ({DEFAULT_PLANNER})")
-    pp.add_argument("--repeat", type=_positive_int, default=3, help="runs per instance; the median is reported")
-    pp.add_argument("--assign", choices=list(ASSIGNERS), default="optimal",
-                    help="assignment for every pipeline (default optimal, on true distances)")
-    pp.add_argument("--paper-max", type=_positive_int, default=100,
-                    help="largest N for the paper's (slow) pipelines (default 100)")
-    common(pp, 180.0)
-    pp.set_defaults(func=cmd_bench)
-
-    pm = sub.add_parser("movingai", help="MovingAI maps with the scenarios' own start-goal pairs",
-                        description="MovingAI benchmark instances (no assignment): success rate, time, "
-                                    "SoC / lower bound, makespan.")
-    pm.add_argument("--maps", default="warehouse-10-20-10-2-1", help="comma-separated map names")
-    pm.add_argument("--scens", default="random-1..5", help="e.g. random-1..5,even-1 (default random-1..5)")
-    pm.add_argument("--agents", default="50,100,200,400", help="robot counts (comma-separated)")
-    pm.add_argument("--planner", default=DEFAULT_PLANNER, help=f"{', '.join(PLANNERS)} (default {DEFAULT_PLANNER})")
-    pm.add_argument("--refine", type=_seconds, default=0.0, metavar="S", help=REFINE_HELP)
-    common(pm, 60.0)
-    pm.set_defaults(func=cmd_bench)
-
-    pc = sub.add_parser("command", help="the whole `uav-robots plan` command, timed as fresh processes",
-                        description="Wall time of whole `uav-robots plan` processes on the paper warehouse with the "
-                                    "scenario's own pairs, beside their in-process time and LaCAM3's whole-process "
-                                    "reference: the like-for-like comparison with a solver binary.")
-    pc.add_argument("--sizes", default="3,10,25,50,100,500", help="robot counts (comma-separated)")
-    pc.add_argument("--repeat", type=_positive_int, default=5, help="processes per size; the median is reported")
-    pc.add_argument("--data", metavar="DIR", help="a benchmark data directory laid out like scenarios/data/")
-    pc.add_argument("--out", default="bench-out", help="directory for the markdown and CSV (default bench-out/)")
-    pc.set_defaults(func=cmd_bench)
-
-    from .secure_bench import add_secure_bench
-    add_secure_bench(sub)
-
-    from .bench_perception import add_parser as add_perception
-    add_perception(sub)
-    sub.choices["perception"].set_defaults(func=cmd_bench)
-
-    from .bench_ticks import add_parser as add_ticks
-    add_ticks(sub)
-    sub.choices["ticks"].set_defaults(func=cmd_bench)
-
-    from .bench_mission import add_parser as add_mission
-    add_mission(sub)
-    sub.choices["mission"].set_defaults(func=cmd_bench)
-
-    from .bench_faults import add_parser as add_faults
-    add_faults(sub)
-    sub.choices["faults"].set_defaults(func=cmd_bench)
-    return p
-
-
-def cmd_bench(args: argparse.Namespace) -> int:
-    from . import bench
-    try:
-        if args.bench == "command":
-            from .bench_command import run_command_bench
-            return run_command_bench(args)
-        if args.bench == "perception":
-            from . import bench_perception
-            return bench_perception.run(args)
-        if args.bench == "ticks":
-            from . import bench_ticks
-            return bench_ticks.run(args)
-        if args.bench == "mission":
-            from . import bench_mission
-            return bench_mission.run(args)
-        if args.bench == "faults":
-            from . import bench_faults
-            return bench_faults.run(args)
-        return bench.run_paper(args) if args.bench == "paper" else bench.run_movingai(args)
-    except UavRobotsError as exc:
-        return _fail(exc)
-    except KeyboardInterrupt:
-        return _fail(UavRobotsError("interrupted"))

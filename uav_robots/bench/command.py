@@ -23,6 +23,9 @@ from pathlib import Path
 
 from protocol.errors import UavRobotsError
 
+from ..common.arguments import positive_int
+from .common import markdown_table, parse_sizes, print_now, save_results
+
 # LaCAM3 (C++) whole-process wall seconds, warehouse-450-random-1, first N pairs
 # (bench-results/reference-solvers.md: measured by the team, not in this run).
 LACAM3_WHOLE_S = {3: 0.11, 10: 0.30, 25: 0.33, 50: 0.45, 100: 0.86, 500: 5.67}
@@ -52,15 +55,25 @@ def time_plan_command(map_spec: str, scen: Path, agents: int, out: Path,
 _LABEL = {"aot": "built ahead of time", "jit": "numba JIT"}
 
 
-def run_command_bench(args: argparse.Namespace) -> int:
+def add_parser(sub) -> argparse.ArgumentParser:
+    pc = sub.add_parser("command", help="the whole `uav-robots plan` command, timed as fresh processes",
+                        description="Wall time of whole `uav-robots plan` processes on the paper warehouse with the "
+                                    "scenario's own pairs, beside their in-process time and LaCAM3's whole-process "
+                                    "reference: the like-for-like comparison with a solver binary.")
+    pc.add_argument("--sizes", default="3,10,25,50,100,500", help="robot counts (comma-separated)")
+    pc.add_argument("--repeat", type=positive_int, default=5, help="processes per size; the median is reported")
+    pc.add_argument("--data", metavar="DIR", help="a benchmark data directory laid out like scenarios/data/")
+    pc.add_argument("--out", default="bench-out", help="directory for the markdown and CSV (default bench-out/)")
+    return pc
+
+
+def run(args: argparse.Namespace) -> int:
     from scenarios.benchmarks import paper_map_spec, paper_scen
     from uav_agent.planning import warm
 
-    from .bench import _markdown, _print, _save, _sizes
-
     # with a build, each size is timed both ways in turn; without one, numba's JIT alone
     modes = ["jit", "aot"] if warm.built() else ["jit"]
-    sizes = _sizes(args.sizes)
+    sizes = parse_sizes(args.sizes)
     scen, map_spec = paper_scen(1, args.data), paper_map_spec(args.data)
     rows, summary, runs = [], [], []
     with tempfile.TemporaryDirectory(prefix="uavr-bench-cmd-") as tmp:
@@ -115,7 +128,7 @@ def run_command_bench(args: argparse.Namespace) -> int:
         "machine of this kind (bench-results/reference-solvers.md), not in this run; compare a whole-command "
         "column with it, never an in-process one.",
     ]
-    text = _markdown(header, rows) + "\n\n" + "\n".join(f"- {n}" for n in notes) + "\n"
-    _save(args.out, "command", "# Whole `uav-robots plan` command (450x450 warehouse)\n\n" + text, summary, runs)
-    _print(text)
+    text = markdown_table(header, rows) + "\n\n" + "\n".join(f"- {n}" for n in notes) + "\n"
+    save_results(args.out, "command", "# Whole `uav-robots plan` command (450x450 warehouse)\n\n" + text, summary, runs)
+    print_now(text)
     return 0

@@ -10,8 +10,8 @@ import time
 
 import numpy as np
 
-from .view_server import Pump, ViewServer
-from .view_state import FleetView
+from .server import Pump, ViewServer
+from .state import FleetView
 
 
 def hold(url: str, seconds: float | None) -> None:

@@ -134,7 +134,7 @@ th,td{{border:1px solid #ccc;padding:3px 8px;text-align:left}} .keys{{font-size:
 
 
 def write(out: Path, report: dict[str, Any]) -> Path:
-    from .outputs import write_atomic
+    from ..common.outputs import write_atomic
 
     path = out / REPORT_HTML
     write_atomic(path, render(report))

@@ -49,7 +49,7 @@ def barrier_rate(robots: int, ticks: int, secure_dir: Path | None) -> float:
     from protocol.keys import Keys
     from protocol.transport import ZenohTransport
 
-    from .launcher import free_port
+    from ..common.ports import free_port
 
     port = free_port()
     if secure_dir is None:
@@ -57,7 +57,7 @@ def barrier_rate(robots: int, ticks: int, secure_dir: Path | None) -> float:
         cfgs = [client_config([f"tcp/127.0.0.1:{port}"], 5000)] * robots
         over: dict[str, Any] = {}
     else:
-        from .secure_cli import make_fleet_dir, new_fleet
+        from ..secure.fleet import make_fleet_dir, new_fleet
 
         made = new_fleet("bench", robots, [[r] for r in range(robots)], ["127.0.0.1"], port, secure_dir)
         make_fleet_dir(secure_dir, made)
@@ -113,7 +113,7 @@ def table(runs: list[dict[str, Any]]) -> str:
     return "\n".join(rows)
 
 
-def run_bench(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     if (not 1 <= args.robots <= 1000 or not 1 <= args.repeat <= 100 or not 1 <= args.barrier_ticks <= 10**6
             or not args.run_timeout > 0):
         raise UavRobotsError("bench secure: --robots in [1, 1000], --repeat in [1, 100], --barrier-ticks in "
@@ -162,7 +162,7 @@ def run_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_secure_bench(sub: Any) -> None:
+def add_parser(sub: Any) -> argparse.ArgumentParser:
     ps = sub.add_parser("secure", help="execution ticks/s with and without --secure, alternating",
                         description="Runs whole missions alternately plain and with --secure and compares "
                                     "execution ticks per second.")
@@ -173,4 +173,4 @@ def add_secure_bench(sub: Any) -> None:
     ps.add_argument("--barrier-ticks", type=int, default=300, help="ticks per in-process barrier run (default 300)")
     ps.add_argument("--run-timeout", type=float, default=600.0, help="seconds one run may take")
     ps.add_argument("--out", default="bench-out", help="directory for secure.md and secure-runs.json")
-    ps.set_defaults(func=lambda a: run_bench(a))
+    return ps

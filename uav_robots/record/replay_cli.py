@@ -15,7 +15,7 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
                                           "write DIR/replay.mp4 from it; with --view, also serve the recorded "
                                           "mission in the live view's page, with a time slider.")
     p.add_argument("dir", help="a run's --out directory")
-    from .cli import add_view_arguments
+    from ..view.arguments import add_view_arguments
 
     add_view_arguments(p)
     p.set_defaults(func=replay_command)
@@ -24,7 +24,7 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
 
 def replay_command(args: argparse.Namespace) -> int:
     from .recording import MCAP, bound, dropped_line, last_tick, read_mcap
-    from .outputs import partial
+    from ..common.outputs import partial
     from .replay import VIDEO, render
 
     directory = Path(args.dir)
@@ -49,8 +49,8 @@ def replay_command(args: argparse.Namespace) -> int:
           flush=True)
     if args.view is not None:
         from .replay import timeline
-        from .view import hold
-        from .view_server import ViewServer
+        from ..view.live import hold
+        from ..view.server import ViewServer
 
         try:
             server = ViewServer(args.view, rec.free, timeline=timeline(rec))

@@ -1,6 +1,6 @@
-"""The camera's cost per frame: render + encode of the survey frames, per camera preset.
+"""`uav-robots bench camera`: the camera's cost per frame, render + encode of the survey frames, per preset.
 
-    python -m uav_robots.bench_camera [--map warehouse-450] [--robots 50] [--rounds 3] [--out bench-results]
+    uav-robots bench camera [--map warehouse-450] [--robots 50] [--rounds 3] [--out bench-results]
 
 In-process (no transport): for each survey pose of the map (the 4000x3000 drone
 camera, yaw 0), one `capture_frame` (render from the true pose, degrade, encode,
@@ -18,10 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-from scenarios.maps import place, resolve_map
-from sim_world.camera import PoseEstimator, Scene, VehicleView, camera_model_from, capture_frame, scene_landmarks
-from sim_world.world import DRONE_CAMERA
-from uav_agent.survey import survey_poses
+from protocol.errors import UavRobotsError
 
 CASES = {
     "ideal": "ideal",
@@ -31,6 +28,11 @@ CASES = {
 
 
 def bench(map_spec: str, robots: int, rounds: int) -> list[dict]:
+    from scenarios.maps import place, resolve_map
+    from sim_world.camera import PoseEstimator, Scene, VehicleView, camera_model_from, capture_frame, scene_landmarks
+    from sim_world.world import DRONE_CAMERA
+    from uav_agent.survey import survey_poses
+
     _, free = resolve_map(map_spec, 0)
     p = place(free, robots, 0)
     h, w = free.shape
@@ -66,7 +68,7 @@ def bench(map_spec: str, robots: int, rounds: int) -> list[dict]:
 
 def markdown(rows: list[dict], map_spec: str, robots: int) -> str:
     lines = [f"Camera cost per frame, {map_spec} with {robots} robots, 4000x3000, survey poses "
-             "(`python -m uav_robots.bench_camera`)", "",
+             "(`uav-robots bench camera`)", "",
              "| camera | frames | render+encode median | vs ideal | first frame (one-time setup) | image bytes |",
              "|---|---|---|---|---|---|"]
     for r in rows:
@@ -75,23 +77,22 @@ def markdown(rows: list[dict], map_spec: str, robots: int) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m uav_robots.bench_camera", description=__doc__.split("\n")[0])
-    ap.add_argument("--map", default="warehouse-450")
-    ap.add_argument("--robots", type=int, default=50)
-    ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--out", default=None, help="directory for camera.md (default: print only)")
-    a = ap.parse_args(argv)
+def add_parser(sub) -> argparse.ArgumentParser:
+    p = sub.add_parser("camera", help="the camera's cost per frame: render + encode of the survey, per preset",
+                       description=__doc__.split("\n")[0])
+    p.add_argument("--map", default="warehouse-450", help="the floor the survey frames show (default warehouse-450)")
+    p.add_argument("--robots", type=int, default=50, help="robots on it (default 50)")
+    p.add_argument("--rounds", type=int, default=3, help="rounds over every survey pose, presets interleaved (default 3)")
+    p.add_argument("--out", default=None, help="directory for camera.md (default: print only)")
+    return p
+
+
+def run(a: argparse.Namespace) -> int:
     if a.rounds < 1 or a.robots < 1:
-        print("error: --rounds and --robots must be at least 1", file=sys.stderr)
-        return 2
+        raise UavRobotsError("--rounds and --robots must be at least 1")
     text = markdown(bench(a.map, a.robots, a.rounds), a.map, a.robots)
     print(text)
     if a.out:
         Path(a.out).mkdir(parents=True, exist_ok=True)
         (Path(a.out) / "camera.md").write_text(text)
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

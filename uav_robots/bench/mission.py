@@ -29,6 +29,8 @@ from pathlib import Path
 
 from protocol.errors import UavRobotsError
 
+from .common import print_now
+
 RUN_TIMEOUT_S = 900.0      # a 1,000-robot mission on a loaded 2-core machine stays well inside
 SUMMARY_PREFIX = "mission "  # the summary's first line: "mission COMPLETED: ..."
 
@@ -159,8 +161,6 @@ def markdown(runs: list[Run], args: argparse.Namespace, command: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .bench import _print
-
     if args.runs < 1:
         raise UavRobotsError(f"--runs must be at least 1, got {args.runs}")
     try:
@@ -180,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
         name = f"mission-runs/run{i:02d}"
         r = run_once(i, args, out / name, extra, name)
         runs.append(r)
-        _print(f"run {i}/{args.runs}: exit {r.exit}, survey + perceive "
+        print_now(f"run {i}/{args.runs}: exit {r.exit}, survey + perceive "
                f"{'-' if r.survey_perceive_s is None else f'{r.survey_perceive_s:.2f} s'}, "
                f"to summary {'-' if r.summary_s is None else f'{r.summary_s:.2f} s'}, to exit {r.wall_s:.2f} s"
                + (f" ({r.error})" if r.error else ""))
@@ -190,11 +190,11 @@ def run(args: argparse.Namespace) -> int:
                                                   "build": args.build,
                                                   "runs": [asdict(r) for r in runs]}, indent=1) + "\n",
                                       encoding="utf-8")
-    _print(f"wrote {out / 'mission.md'}, {out / 'mission.json'} (each run's outputs and logs in {out / 'mission-runs'})")
+    print_now(f"wrote {out / 'mission.md'}, {out / 'mission.json'} (each run's outputs and logs in {out / 'mission-runs'})")
     return 0 if all(r.exit == 0 for r in runs) else 1
 
 
-def add_parser(sub) -> None:
+def add_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser("mission", help="whole `uav-robots run` commands in a row: survey, summary and exit times",
                        description="Run the whole mission command several times in a row and tabulate each run's "
                                    "survey + perceive, time to the summary and to exit, closer looks and retakes.")
@@ -213,3 +213,4 @@ def add_parser(sub) -> None:
                         "apart: a new machine's first run after the one-time build")
     p.add_argument("--out", default="bench-out", help="directory for mission.md, mission.json and the runs' "
                                                       "outputs (default bench-out/)")
+    return p

@@ -19,9 +19,9 @@ import numpy as np
 
 from uav_agent.visualize import FLOOR, SHELF
 
-from .view_state import FleetView, Seen
+from .state import FleetView, Seen
 
-PAGE = Path(__file__).with_name("view_page.html")
+PAGE = Path(__file__).with_name("page.html")
 PERIOD_S = 0.1
 
 

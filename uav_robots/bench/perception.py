@@ -219,7 +219,7 @@ def run(args: argparse.Namespace) -> int:
     return 1 if bad else 0
 
 
-def add_parser(sub) -> None:
+def add_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser("perception", help="perception accuracy under degraded cameras (offline)",
                        description="Renders the mission's survey offline for each camera degradation and scores "
                                    "perception: cells wrong, robots and goals missed, perception time.")
@@ -232,3 +232,4 @@ def add_parser(sub) -> None:
                    help="survey images taken leaning this much (roll or pitch), as a body-fixed camera is right "
                         "after the vehicle brakes; closer looks wait for a level body (default 0)")
     p.add_argument("--out", default="bench-out", help="directory for perception.md and perception.json")
+    return p

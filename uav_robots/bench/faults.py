@@ -141,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
     return 0 if all(r.passed for r in rows) else 1
 
 
-def add_parser(sub) -> None:
+def add_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser("faults", help="whole missions with faults injected: each ends COMPLETED or DEGRADED, "
                                       "0 collisions",
                        description="Run the fault scenarios (stalls, crashes, liars, skids, slips, all at once) as "
@@ -149,3 +149,4 @@ def add_parser(sub) -> None:
     p.add_argument("--quick", action="store_true", help="one scenario of each kind (14 instead of 36)")
     p.add_argument("--out", default="bench-out", help="directory for faults/faults.md, faults.json and the runs "
                                                       "(default bench-out/)")
+    return p

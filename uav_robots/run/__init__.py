@@ -1,0 +1,1 @@
+"""`uav-robots run`: a whole mission's processes on this machine, started, watched, stopped, summed up."""

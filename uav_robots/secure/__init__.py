@@ -1,0 +1,1 @@
+"""Mutual TLS and access control: a fleet's CA, certificates and Zenoh configs (`uav-robots secure init`)."""
