@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import subprocess
+import sys
 
 import pytest
 from hypothesis import given, strategies as st
@@ -89,3 +91,36 @@ def test_faults_go_to_the_process_that_injects_them():
         parse_fault("slip:0.1", ROBOTS)
     with pytest.raises(UavRobotsError, match="P in \\[0, 1\\]"):
         parse_fault("slip:1.5")
+
+
+def _uav_robots(argv: list[str], timeout: float) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "uav_robots", *argv], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def test_a_bad_spec_file_is_one_line_and_exit_2(tmp_path):
+    (tmp_path / "run.json").write_text(json.dumps({"format": "uav-robots-run/1", "robots": "eight"}))
+    res = _uav_robots(["run", "--spec", str(tmp_path / "run.json")], 60)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert "robots is 'eight'" in res.stderr
+
+
+@pytest.mark.slow
+def test_a_run_is_repeated_from_its_spec(tmp_path):
+    """`run --spec OUT/run.json` repeats the run: the same spec (seed, faults, planner), the same plan,
+    and report.json carries the spec; a flag given beside --spec still wins."""
+    first, again = tmp_path / "first", tmp_path / "again"
+    res = _uav_robots(["run", "--robots", "4", "--seed", "5", "--fault", "crash:2@3", "--planner", "pibt",
+                       "--camera", "ideal", "--out", str(first), "--quiet"], 300)
+    assert res.returncode == 3, res.stderr[-2000:]
+    spec = read_spec(first / "run.json")
+    assert (spec.robots, spec.seed, spec.faults, spec.planning.planner) == (4, 5, ("crash:2@3",), "pibt")
+    assert json.loads((first / "report.json").read_text())["run"] == spec.as_dict()
+    res = _uav_robots(["run", "--spec", str(first / "run.json"), "--out", str(again), "--quiet"], 300)
+    assert res.returncode == 3, res.stderr[-2000:]
+    assert (again / "run.json").read_text() == (first / "run.json").read_text()
+    paths = [{r["id"]: r["path"] for r in json.loads((d / "plan.json").read_text())["robots"]} for d in (first, again)]
+    assert paths[0] == paths[1]
+    res = _uav_robots(["run", "--spec", str(first / "run.json"), "--fault", "crash:1@2", "--out", str(again),
+                       "--quiet"], 300)
+    assert read_spec(again / "run.json").faults == ("crash:1@2",)

@@ -19,7 +19,7 @@ REPORT = "report.json"
 LOGS = "logs"
 # Every file a run writes into its directory: the UAV's (report, details, plan, images) and the
 # launcher's (recording, video and its draft, report page).
-OUTPUTS = (REPORT, "details.json", "plan.json", "overhead.png", "paths.png", "replay.gif",
+OUTPUTS = (REPORT, "run.json", "details.json", "plan.json", "overhead.png", "paths.png", "replay.gif",
            "mission.mcap", "replay.mp4", ".replay-draft.mp4", "report.html")
 _PARTIAL = ".partial-"    # a file being written (write_atomic): never an output
 

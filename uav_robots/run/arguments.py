@@ -7,6 +7,8 @@ import os
 from pathlib import Path
 
 from protocol.errors import MissionError, UavRobotsError
+from protocol.faults import help_line as fault_help
+from protocol.run_spec import add_spec_argument
 
 from ..common.robot_groups import robot_groups
 from ..view.arguments import add_view_arguments
@@ -51,12 +53,7 @@ def add_run_parser(sub) -> None:
                         "(its H.264 RTP stream, the pose from telemetry)")
     p.add_argument("--robots-per-process", type=int, default=None,
                    help="robots hosted per process (default: 1 up to 64 robots, then 4 pools)")
-    p.add_argument("--fault", action="append", default=[], metavar="SPEC",
-                   help="inject a fault (repeatable): crash:ROBOT@TICK (the robot dies at that tick), "
-                        "stall:ROBOT@TICK:TICKS (it stops moving and reporting that long), liar:ROBOT "
-                        "(it raises Done at its start and stops); the world's: slip:P (any move ends "
-                        "elsewhere with probability P), skid:ROBOT@TICK (from that tick every move of the "
-                        "robot does: it keeps deviating)")
+    p.add_argument("--fault", action="append", default=[], metavar="SPEC", help=fault_help())
     p.add_argument("--monitor-every", type=int, default=None, metavar="K",
                    help="while the robots move, the UAV takes an image every K ticks and checks every robot "
                         "it sees against the plan (default: automatic, at most 20 %% of the execution time; 0: never)")
@@ -74,6 +71,7 @@ def add_run_parser(sub) -> None:
                    help="mutual TLS and access control: a fresh CA and certificates in a temporary directory "
                         "(kept in OUT/secure with --out), or those of DIR from `uav-robots secure init`")
     # The mission's code (and what it imports) loads only when `run` is what runs.
+    add_spec_argument(p)
     p.set_defaults(func=lambda a: importlib.import_module("uav_robots.run.mission").run(a))
 
 

@@ -29,7 +29,6 @@ from protocol.keys import format_ids, new_fleet_name
 from protocol.process import die_with_parent
 from protocol.security import robot_identity
 from robot_agents import forked
-from protocol.faults import parse_fault
 from sim_world.world import is_world_fault
 
 from ..common import outputs
@@ -102,6 +101,7 @@ class Launcher:
         self.robots_due = math.inf
         self.secure_dir: Path | None = None       # certificates and configs, with --secure
         self.secure_temporary = False
+        self.spec: Path | None = None               # OUT/run.json: every process reads the run's configuration there
         self.configs: dict[str, str] = {}           # identity -> its Zenoh config, with --secure
         if args.secure is not None:
             self._secure(args.secure)
@@ -173,15 +173,9 @@ class Launcher:
         self.start_vehicle()
         camera_world, camera_uav = camera_wiring(getattr(a, "camera_source", "zenoh"),
                                                  lambda: free_port(socket.SOCK_DGRAM))
-        uav = self._spawn("uav", "uav_agent", [*camera_uav, *common, *self.session_args("uav", hub=True), "--robots", str(a.robots),
-                                  "--mavlink", self.autopilot_url(), "--out", str(self.out),
-                                  *(["--assign", a.assign] if a.assign else []),
-                                  "--connectivity", str(a.connectivity),
-                                  "--time-limit", str(a.time_limit), "--seed", str(a.seed),
-                                  "--tick-rate", str(a.tick_rate), "--tick-timeout", str(a.tick_timeout),
-                                  *(["--monitor-every", str(a.monitor_every)] if a.monitor_every is not None else []),
-                                  *(["--planner", a.planner] if a.planner else []),
-                                  *(["--no-fallback"] if a.no_fallback else []),
+        # The run's configuration is the spec's; the flags here are what is this process's alone.
+        uav = self._spawn("uav", "uav_agent", [*camera_uav, *common, *self.session_args("uav", hub=True),
+                                  "--spec", str(self.spec), "--mavlink", self.autopilot_url(), "--out", str(self.out),
                                   *(["--quiet"] if a.quiet or a.json else []),
                                   *(["--observers", "1"] if self.records() else []),
                                   *(["--summary", "none"] if a.json else [])], terminal=True)
@@ -235,16 +229,13 @@ class Launcher:
         if self.robots_started:
             return
         self.robots_started = True
-        a = self.args
         common = ["--fleet", self.fleet]
-        faults = [parse_fault(f) for f in a.fault if not is_world_fault(f)]
         for group in self.groups:
             contiguous = group == list(range(group[0], group[-1] + 1))
             ids = f"{group[0]}-{group[-1]}" if contiguous else format_ids(group)
-            mine = [arg for f in faults if f.robot in group for arg in ("--fault", str(f))]
+            # Each pool takes the faults of the robots it hosts from the spec.
             self._spawn(f"robots-{group[0]}-{group[-1]}", "robot_agents", [*common, *self.session_args(robot_identity(group).name),
-                                          "--ids", ids, "--moves", "ahead",
-                                          "--connectivity", str(a.connectivity), *mine])
+                                          "--ids", ids, "--moves", "ahead", "--spec", str(self.spec)])
 
     def watch(self, uav: Child, timeout_s: float, flying=lambda: True, each=lambda: None) -> int | None:
         """Wait for the UAV: it owns the mission's outcome. Other processes dying is the UAV's to

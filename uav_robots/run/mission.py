@@ -11,6 +11,7 @@ from protocol.errors import MissionError, UavRobotsError
 from .arguments import check_arguments
 from .launcher import Launcher
 from .outcome import finish
+from .spec import from_spec_file, spec_of, write_spec
 
 
 def start_observer(launcher: Launcher):
@@ -43,9 +44,11 @@ def open_view(args, free):
 
 
 def run(args) -> int:
+    from_spec_file(args)
     name, free = check_arguments(args)
     launcher = Launcher(args)
     launcher.floor_shape = free.shape
+    launcher.spec = write_spec(launcher.out, spec_of(args))
     try:
         return _run(args, launcher, name, free)
     finally:
