@@ -587,7 +587,8 @@ def _uav_patches() -> dict[str, Patch]:
     from uav_agent.fleet import FleetLink
     from uav_agent.flight import Flight
     from uav_agent.mission import Mission
-    from uav_agent.planning import interpreted, pipeline, validator
+    from uav_agent.planning.build import interpreted
+    from uav_agent.planning import pipeline, validator
     from uav_agent.pose_feed import PoseFeed
 
     transport_of, dispatch, end, decode_of, wait_until = (mission._transport, Mission._dispatch, Mission._end,
@@ -619,7 +620,7 @@ def _uav_patches() -> dict[str, Patch]:
     def through_a_goal(plan_plain):
         def plan(free, starts, goals, **kw):
             # Robot 0 waits until robot 1 has arrived, then drives across robot 1's goal to its own.
-            from uav_agent.planning.astar import astar
+            from uav_agent.planning.paper.astar import astar
 
             result = plan_plain(free, starts, goals, **kw)
             paths = list(result.paths)

@@ -24,7 +24,7 @@ sys.path.insert(0, str(FsPath(__file__).resolve().parents[1]))   # the checkout,
 from protocol.errors import PlanningError, UavRobotsError
 from protocol.mapfile import read_scen
 from scenarios.maps import resolve_map, shipped_movingai
-from uav_agent.planning import warm
+from uav_agent.planning.build import warm
 from uav_agent.planning.registry import get_planner
 from uav_agent.planning.types import Cell, Limits, Path, Problem, makespan, sum_of_costs
 from uav_agent.planning.validator import validate

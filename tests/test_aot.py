@@ -1,4 +1,4 @@
-"""The planning kernels built ahead of time (uav_agent/planning/aot.py, jit.py): a real build
+"""The planning kernels built ahead of time (uav_agent/planning/build/aot.py, jit.py): a real build
 with numba's pycc and the C compiler into a cache directory of the test's own, then fresh
 processes that plan with it, without numba, the very plans numba's JIT gives."""
 from __future__ import annotations
@@ -13,8 +13,8 @@ from typing import NamedTuple
 import numpy as np
 import pytest
 
-from uav_agent.planning.aot import missing_tools
-from uav_agent.planning.jit import kind
+from uav_agent.planning.build.aot import missing_tools
+from uav_agent.planning.compile.jit import kind
 
 # The module's fixture builds the planners ahead of time (about a minute): out of the developer lane.
 pytestmark = pytest.mark.slow
@@ -63,8 +63,9 @@ def _env(cache: Path | None, kernels: str | None = None) -> dict[str, str]:
 _PLANS = r"""
 import json, sys
 from scenarios import maps
-from uav_agent.planning.pipeline import plan_mission, warm_up
-from uav_agent.planning import jit
+from uav_agent.planning.build.warm import warm_up
+from uav_agent.planning.pipeline import plan_mission
+from uav_agent.planning.compile import jit
 warm_up()    # a JIT compile inside a plan's clock would cut LaCAM's time-bounded guided search short
 free = maps.warehouse(4, 6)
 out = {}
@@ -82,8 +83,8 @@ print(json.dumps({"mode": jit.MODE, "numba": "numba" in sys.modules, "plans": ou
 _FALLBACK = r"""
 import json, sys
 import numpy as np
-from uav_agent.planning import jit
-from uav_agent.planning.distances import _bfs, grid_graph
+from uav_agent.planning.compile import jit
+from uav_agent.planning.mapf.distances import _bfs, grid_graph
 
 free = np.ones((5, 7), dtype=bool); free[2, 1:6] = False
 g = grid_graph(free, 4)

@@ -374,7 +374,7 @@ class Mission:
             self._survey_border = lens.submit(self._border, self._camera, self.cfg.min_px_per_cell,
                                               self.info.cell_size_m)
             lens.shutdown(wait=False)
-            from .planning.warm import is_warm
+            from .planning.build.warm import is_warm
             self._compiling = not is_warm()   # a fresh clone: the kernels compile during the flight
             self._skip_warm = threading.Event()
             self._warm = threading.Thread(target=self._warm_up_planner, name="planner-warm-up", daemon=True)
@@ -393,7 +393,7 @@ class Mission:
                                       t0=self.events.t0)
             self.clock.lap("connect")
             if self._compiling:
-                from .planning.interpreted import InterpretedPlanner
+                from .planning.build.interpreted import InterpretedPlanner
                 # its interpreter and imports while the vehicle climbs (the link's set-up before
                 # took its CPU: the connection came 0.6 s later)
                 self._interpreter = InterpretedPlanner()
@@ -465,8 +465,8 @@ class Mission:
             self.progress.phase("connecting", f"not waiting longer for a recorder ({exc}): it may miss the start")
 
     def _warm_up_planner(self) -> None:
-        from .planning import warm
-        from .planning.pipeline import warm_up
+        from .planning.build import warm
+        from .planning.build.warm import warm_up
         from .planning.registry import DEFAULT_PLANNER
 
         try:
@@ -768,7 +768,7 @@ class Mission:
         clone's first run): a few seconds for the missions `uav-robots run` flies (the 450x450
         warehouse's 50 robots: about 2 s, against half a minute's wait); None when the instance is
         too large for that or the interpreted run failed: the caller then waits for the kernels."""
-        from .planning.interpreted import InterpretedPlanner, fits
+        from .planning.build.interpreted import InterpretedPlanner, fits
 
         ahead, self._interpreter = self._interpreter, None   # the child started at takeoff serves once
         if not fits(free, len(starts), len(goals)):

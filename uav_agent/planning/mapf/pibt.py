@@ -22,7 +22,7 @@ import time
 from typing import NamedTuple
 
 import numpy as np
-from .jit import njit
+from ..compile.jit import njit
 
 from protocol.errors import PlanningError
 
@@ -38,7 +38,7 @@ from .grid_kernels import (
     order_by_priority,
     rand_next,
 )
-from .types import Limits, Path, Problem
+from ..types import Limits, Path, Problem
 
 
 class Pibt(NamedTuple):

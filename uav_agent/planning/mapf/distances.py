@@ -20,11 +20,11 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-from .jit import INTERPRETED, njit
+from ..compile.jit import INTERPRETED, njit
 
 from protocol.errors import PlanningError
 
-from .types import Cell, Problem
+from ..types import Cell, Problem
 
 THREADS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
 UNREACHABLE_16 = np.iinfo(np.uint16).max

@@ -21,7 +21,7 @@ steps are never needed.
 from __future__ import annotations
 
 import numpy as np
-from .jit import njit
+from ..compile.jit import njit
 
 from .grid_kernels import (
     Geometry,

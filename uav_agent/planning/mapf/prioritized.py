@@ -33,7 +33,7 @@ import math
 import time
 
 import numpy as np
-from .jit import njit
+from ..compile.jit import njit
 
 from protocol.errors import PlanningError, PlanningTimeout
 
@@ -52,7 +52,7 @@ from .reservations import (
     unreserve,
 )
 from .sipp import sipp
-from .types import Limits, Path, Problem
+from ..types import Limits, Path, Problem
 
 UNBOUNDED = np.int64(2**40)      # an f bound that never cuts a search (int64, not a literal: see blockers)
 MAX_TRIES = 100                  # orders tried before prioritized planning gives up

@@ -3,16 +3,16 @@
 Every kernel module decorates its kernels with this `njit`. What it returns is decided once,
 when the first kernel module is imported:
 
-- **ahead-of-time** (`aot.py` built the kernels for this source, this Python and this NumPy):
+- **ahead-of-time** (`build/aot.py` built the kernels for this source, this Python and this NumPy):
   each kernel is a `Kernel` that calls the build's compiled function for its argument types.
   The process then never imports numba, whose import, compiler set-up and cached kernels'
   loading were 0.6-0.7 s of a 1.1 s `uav-robots plan` (50 robots on the 450 warehouse).
   Argument types the build has not seen fall back to numba's JIT for that kernel (logged).
-- **JIT**: `numba.njit`, with numba's on-disk cache (`warm.py` fills it on a fresh machine).
+- **JIT**: `numba.njit`, with numba's on-disk cache (`build/warm.py` fills it on a fresh machine).
   `UAV_ROBOTS_KERNELS=jit` forces it.
-- **interpreted** (`NUMBA_DISABLE_JIT=1`, with or without a build; `interpreted.py`'s child): the
+- **interpreted** (`NUMBA_DISABLE_JIT=1`, with or without a build; `build/interpreted.py`'s child): the
   kernels run as plain Python, but for the distance fields (SciPy, the same numbers).
-- **record** (`UAV_ROBOTS_KERNELS=record`, with `NUMBA_DISABLE_JIT=1`; `aot.py`'s own): the
+- **record** (`UAV_ROBOTS_KERNELS=record`, with `NUMBA_DISABLE_JIT=1`; `build/aot.py`'s own): the
   kernels run interpreted and every call from Python notes its argument types, which are
   the signatures the build compiles.
 """
@@ -29,7 +29,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .warm import build_dir, build_name
+from .cache import build_dir, build_name
 
 MODE_ENV = "UAV_ROBOTS_KERNELS"
 LINUX = sys.platform.startswith("linux")
@@ -37,7 +37,7 @@ LINUX = sys.platform.startswith("linux")
 
 def kind(x: Any) -> Any:
     """What a compiled kernel's signature distinguishes in an argument, in plain Python values
-    (the same on both sides of a build: `aot.py` keys its exports with it)."""
+    (the same on both sides of a build: `build/aot.py` keys its exports with it)."""
     t = type(x)
     if t is np.ndarray:
         layout = "C" if x.flags.c_contiguous else "F" if x.flags.f_contiguous else "A"
@@ -152,7 +152,7 @@ def _enable_jit():
     global monotonic
     import numba
     if not numba.config.DISABLE_JIT:
-        from .warm import drop_stale_cache
+        from .stale import drop_stale_cache
         drop_stale_cache()
     _array_maths_without_blas()
     monotonic = _jit_monotonic()
@@ -204,7 +204,7 @@ def _decorator(make: Callable[[Callable, dict], Any]):
 
 
 MODE = os.environ.get(MODE_ENV, "")
-# numba's own switch wins over a build: `interpreted.py`'s child is asked for plain Python (a
+# numba's own switch wins over a build: `build/interpreted.py`'s child is asked for plain Python (a
 # build's plan there would not show what a fresh clone's first run does), and so is a user who sets it
 _DISABLED = os.environ.get("NUMBA_DISABLE_JIT", "0").strip() not in ("", "0")
 _BUILD = None if MODE in ("jit", "record") or _DISABLED else _load_build()
@@ -224,5 +224,5 @@ else:
 
 AHEAD_OF_TIME = MODE == "aot"
 # Interpreted, a kernel that visits every cell of a large grid takes seconds: the few that do
-# have a NumPy or SciPy twin that gives the same numbers (distances.py).
+# have a NumPy or SciPy twin that gives the same numbers (mapf/distances.py).
 INTERPRETED = MODE == "interpreted"
