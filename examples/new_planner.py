@@ -6,9 +6,9 @@
 A planner is a plain function `planner(problem: Problem, limits: Limits) -> list[Path]`
 (uav_agent/planning/types.py): one path per robot, paths[i][t] the cell (x, y) of robot i at step t,
 from its start to its goal, where it then stays. It calls `limits.check(...)` in its loops so it never
-hangs and raises PlanningError (one line) when it finds no plan. Registering it is one line in `_SPECS`
-of uav_agent/planning/registry.py (`"my-planner": ("my_module", "my_function", False)`, the module under
-uav_agent/planning/); from then on `--planner my-planner` works in `uav-robots plan` and `run`. Here it
+hangs and raises PlanningError (one line) when it finds no plan. Registering it is one row in `SPECS`
+of uav_agent/planning/registry.py (`PlannerSpec("my-planner", "mapf.my_module", "my_function")`, the
+module under uav_agent/planning/); from then on `--planner my-planner` works in `uav-robots plan` and `run`. Here it
 stays a function of its own, called as the registry's planners are and checked by the same validator.
 """
 from __future__ import annotations

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from uav_agent.planning.build.aot import missing_tools
-from uav_agent.planning.compile.jit import kind
+from uav_agent.planning.compile.prebuilt import kind
 
 # The module's fixture builds the planners ahead of time (about a minute): out of the developer lane.
 pytestmark = pytest.mark.slow

@@ -18,103 +18,16 @@ when the first kernel module is imported:
 """
 from __future__ import annotations
 
-import ast
-import importlib.util
-import json
 import os
 import sys
 import threading
 import time
 from typing import Any, Callable
 
-import numpy as np
-
-from .cache import build_dir, build_name
+from .prebuilt import Kernel, kind, load_build
 
 MODE_ENV = "UAV_ROBOTS_KERNELS"
 LINUX = sys.platform.startswith("linux")
-
-
-def kind(x: Any) -> Any:
-    """What a compiled kernel's signature distinguishes in an argument, in plain Python values
-    (the same on both sides of a build: `build/aot.py` keys its exports with it)."""
-    t = type(x)
-    if t is np.ndarray:
-        layout = "C" if x.flags.c_contiguous else "F" if x.flags.f_contiguous else "A"
-        return (x.dtype.str, x.ndim, layout, bool(x.flags.writeable))
-    if t is bool or t is np.bool_:
-        return "b"
-    if t is int:
-        return "i"
-    if t is float:
-        return "f"
-    if isinstance(x, tuple):
-        return (t.__name__, *[kind(v) for v in x])
-    if isinstance(x, np.generic):
-        # numba types a NumPy int64 or float64 scalar as it does the Python value
-        return _SCALAR_KIND.get(x.dtype.str, x.dtype.str)
-    return t.__name__
-
-
-_SCALAR_KIND = {"<i8": "i", "<f8": "f"}
-
-
-def _load_build() -> dict[str, dict] | None:
-    """The build for this source: {kernel name: {argument kinds: compiled function}}, or None."""
-    if not LINUX:
-        return None
-    name = build_name()
-    try:
-        manifest = json.loads((build_dir() / f"{name}.json").read_text())
-        table: dict[str, dict] = {}
-        for library in manifest["libraries"]:
-            module_name = library["file"].split(".", 1)[0]
-            spec = importlib.util.spec_from_file_location(module_name, build_dir() / library["file"])
-            if spec is None or spec.loader is None:
-                return None
-            module = importlib.util.module_from_spec(spec)
-            spec.loader.exec_module(module)
-            for kernel, keyed in library["kernels"].items():
-                table.setdefault(kernel, {}).update(
-                    {ast.literal_eval(key): getattr(module, export) for key, export in keyed})
-        return table
-    except (OSError, ValueError, KeyError, ImportError, AttributeError, SyntaxError):
-        return None      # no build, or an unreadable one: the JIT will do
-
-
-class Kernel:
-    """A kernel of the ahead-of-time build: its compiled function for the argument types the
-    build saw, numba's JIT for any other (and when another JIT-compiled kernel calls it)."""
-
-    def __init__(self, py_func: Callable, options: dict, exports: dict):
-        self.py_func = py_func
-        self.options = options
-        self.exports = exports
-        self.name = f"{py_func.__module__}.{py_func.__qualname__}"
-        self._dispatcher = None
-
-    def __call__(self, *args):
-        f = self.exports.get(tuple([kind(a) for a in args]))
-        if f is not None:
-            return f(*args)
-        return self.dispatcher()(*args)
-
-    def dispatcher(self):
-        if self._dispatcher is None:
-            numba = _enable_jit()
-            _warn_once(f"planner kernel {self.name} has no ahead-of-time build for these argument types: "
-                       "numba compiles it")
-            self._dispatcher = numba.njit(**self.options)(self.py_func)
-        return self._dispatcher
-
-
-_warned: set[str] = set()
-
-
-def _warn_once(text: str) -> None:
-    if text not in _warned:
-        _warned.add(text)
-        print(f"warning: {text}", file=sys.stderr)
 
 
 def _array_maths_without_blas() -> None:
@@ -157,13 +70,8 @@ def _enable_jit():
     _array_maths_without_blas()
     monotonic = _jit_monotonic()
     if _BUILD is not None:
-        from numba.core import types
-        from numba.extending import typeof_impl
-
-        # a JIT-compiled kernel calling an ahead-of-time one calls its JIT twin
-        @typeof_impl.register(Kernel)
-        def _typeof_kernel(val, c):
-            return types.Dispatcher(val.dispatcher())
+        from .prebuilt import jit_twins_for_numba
+        jit_twins_for_numba()
     return numba
 
 
@@ -207,7 +115,7 @@ MODE = os.environ.get(MODE_ENV, "")
 # numba's own switch wins over a build: `build/interpreted.py`'s child is asked for plain Python (a
 # build's plan there would not show what a fresh clone's first run does), and so is a user who sets it
 _DISABLED = os.environ.get("NUMBA_DISABLE_JIT", "0").strip() not in ("", "0")
-_BUILD = None if MODE in ("jit", "record") or _DISABLED else _load_build()
+_BUILD = None if MODE in ("jit", "record") or _DISABLED else load_build(LINUX)
 monotonic: Callable[[], float]
 if MODE == "record":
     monotonic = time.perf_counter
@@ -215,7 +123,8 @@ if MODE == "record":
 elif _BUILD is not None:
     MODE = "aot"
     monotonic = time.perf_counter        # the build calls clock.monotonic; the JIT swaps it in
-    njit = _decorator(lambda f, options: Kernel(f, options, _BUILD.get(f"{f.__module__}.{f.__qualname__}", {})))
+    njit = _decorator(lambda f, options: Kernel(f, options, _BUILD.get(f"{f.__module__}.{f.__qualname__}", {}),
+                                                      _enable_jit))
 else:
     _numba = _enable_jit()
     # NUMBA_DISABLE_JIT=1 (interpreted.py's child): the decorated kernels run as written

@@ -15,6 +15,8 @@ livelock; with it a robot that would have to push another back down a
 corridor pulls it through instead. PIBT alone can still cycle forever, so
 `pibt` gives up with a PlanningError after a step cap or the time limit;
 `lacam.py` uses `pibt_step` as its configuration generator and is complete.
+
+A plain-Python reading copy of PIBT, without the swap technique: `planning/reference/pibt.py`.
 """
 from __future__ import annotations
 

@@ -23,9 +23,9 @@ for Decoupled Path Planning Techniques for Teams of Mobile Robots", Robotics
 and Autonomous Systems 2002), with random reorders after a few tries, up to
 MAX_TRIES orders or the time limit.
 
-`guide_paths` is one pass that skips the robots it cannot route: LaCAM
-(`lacam.py`) uses its paths as a plan when complete and as PIBT's guides
-otherwise.
+`guide_paths` is one pass that skips the robots it cannot route: the default
+planner (`planning/portfolio.py`) uses its paths as a plan when complete and as
+LaCAM's PIBT's guides otherwise.
 """
 from __future__ import annotations
 
