@@ -144,7 +144,7 @@ def test_a_changed_source_is_not_loaded_from_an_old_build(build):
     moved = manifest.with_name("kernels_0000000000000000.json")
     manifest.rename(moved)
     try:
-        out, _ = _run("import json; from uav_agent.planning import jit; print(json.dumps({'mode': jit.MODE}))",
+        out, _ = _run("import json; from uav_agent.planning.compile import jit; print(json.dumps({'mode': jit.MODE}))",
                       _env(build))
         assert out["mode"] == "jit"
     finally:
@@ -163,9 +163,9 @@ def test_a_machine_without_a_compiler_is_told_in_one_line(tmp_path):
 
 @needs_compiler
 def test_numbas_own_switch_runs_the_kernels_interpreted_beside_a_build(build):
-    # interpreted.py's child asks for plain Python with NUMBA_DISABLE_JIT=1: a build there would
+    # build/interpreted.py's child asks for plain Python with NUMBA_DISABLE_JIT=1: a build there would
     # plan in milliseconds what a fresh clone's first run plans interpreted
     env = {**_env(build), "NUMBA_DISABLE_JIT": "1"}
-    out, _ = _run("import json, sys; from uav_agent.planning import jit; "
+    out, _ = _run("import json, sys; from uav_agent.planning.compile import jit; "
                   "print(json.dumps({'mode': jit.MODE, 'interpreted': jit.INTERPRETED}))", env)
     assert out == {"mode": "interpreted", "interpreted": True}
