@@ -589,7 +589,8 @@ def _uav_patches() -> dict[str, Patch]:
     from uav_agent.mission import context, dispatch, execute, finish, repair, verify
     from uav_agent.mission import plan as planning
     from uav_agent.mission.context import MissionContext
-    from uav_agent.planning import interpreted, pipeline, validator
+    from uav_agent.planning import pipeline, validator
+    from uav_agent.planning.build import interpreted
     from uav_agent.pose_feed import PoseFeed
 
     transport_of, send, end, decode_of, wait_until = (context.open_transport, dispatch.send, finish.end,
@@ -621,7 +622,7 @@ def _uav_patches() -> dict[str, Patch]:
     def through_a_goal(plan_plain):
         def plan(free, starts, goals, **kw):
             # Robot 0 waits until robot 1 has arrived, then drives across robot 1's goal to its own.
-            from uav_agent.planning.astar import astar
+            from uav_agent.planning.paper.astar import astar
 
             result = plan_plain(free, starts, goals, **kw)
             paths = list(result.paths)

@@ -6,9 +6,9 @@
 A planner is a plain function `planner(problem: Problem, limits: Limits) -> list[Path]`
 (uav_agent/planning/types.py): one path per robot, paths[i][t] the cell (x, y) of robot i at step t,
 from its start to its goal, where it then stays. It calls `limits.check(...)` in its loops so it never
-hangs and raises PlanningError (one line) when it finds no plan. Registering it is one line in `_SPECS`
-of uav_agent/planning/registry.py (`"my-planner": ("my_module", "my_function", False)`, the module under
-uav_agent/planning/); from then on `--planner my-planner` works in `uav-robots plan` and `run`. Here it
+hangs and raises PlanningError (one line) when it finds no plan. Registering it is one row in `SPECS`
+of uav_agent/planning/registry.py (`PlannerSpec("my-planner", "mapf.my_module", "my_function")`, the
+module under uav_agent/planning/); from then on `--planner my-planner` works in `uav-robots plan` and `run`. Here it
 stays a function of its own, called as the registry's planners are and checked by the same validator.
 """
 from __future__ import annotations
@@ -24,7 +24,7 @@ sys.path.insert(0, str(FsPath(__file__).resolve().parents[1]))   # the checkout,
 from protocol.errors import PlanningError, UavRobotsError
 from protocol.mapfile import read_scen
 from scenarios.maps import resolve_map, shipped_movingai
-from uav_agent.planning import warm
+from uav_agent.planning.build import warm
 from uav_agent.planning.registry import get_planner
 from uav_agent.planning.types import Cell, Limits, Path, Problem, makespan, sum_of_costs
 from uav_agent.planning.validator import validate

@@ -20,8 +20,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # the checkout, e
 from protocol.errors import UavRobotsError
 from protocol.mapfile import read_scen
 from scenarios.maps import resolve_map, shipped_movingai
-from uav_agent.planning import warm
-from uav_agent.planning.interpreted import fits, plan_interpreted
+from uav_agent.planning.build import warm
+from uav_agent.planning.build.interpreted import fits, plan_interpreted
 from uav_agent.planning.pipeline import plan_mission
 from uav_agent.planning.registry import PLANNERS
 from uav_agent.planning.types import Problem, makespan, sum_of_costs

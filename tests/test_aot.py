@@ -1,4 +1,4 @@
-"""The planning kernels built ahead of time (uav_agent/planning/aot.py, jit.py): a real build
+"""The planning kernels built ahead of time (uav_agent/planning/build/aot.py, jit.py): a real build
 with numba's pycc and the C compiler into a cache directory of the test's own, then fresh
 processes that plan with it, without numba, the very plans numba's JIT gives."""
 from __future__ import annotations
@@ -13,8 +13,8 @@ from typing import NamedTuple
 import numpy as np
 import pytest
 
-from uav_agent.planning.aot import missing_tools
-from uav_agent.planning.jit import kind
+from uav_agent.planning.build.aot import missing_tools
+from uav_agent.planning.compile.prebuilt import kind
 
 # The module's fixture builds the planners ahead of time (about a minute): out of the developer lane.
 pytestmark = pytest.mark.slow
@@ -63,8 +63,9 @@ def _env(cache: Path | None, kernels: str | None = None) -> dict[str, str]:
 _PLANS = r"""
 import json, sys
 from scenarios import maps
-from uav_agent.planning.pipeline import plan_mission, warm_up
-from uav_agent.planning import jit
+from uav_agent.planning.build.warm import warm_up
+from uav_agent.planning.pipeline import plan_mission
+from uav_agent.planning.compile import jit
 warm_up()    # a JIT compile inside a plan's clock would cut LaCAM's time-bounded guided search short
 free = maps.warehouse(4, 6)
 out = {}
@@ -82,8 +83,8 @@ print(json.dumps({"mode": jit.MODE, "numba": "numba" in sys.modules, "plans": ou
 _FALLBACK = r"""
 import json, sys
 import numpy as np
-from uav_agent.planning import jit
-from uav_agent.planning.distances import _bfs, grid_graph
+from uav_agent.planning.compile import jit
+from uav_agent.planning.mapf.distances import _bfs, grid_graph
 
 free = np.ones((5, 7), dtype=bool); free[2, 1:6] = False
 g = grid_graph(free, 4)
@@ -143,7 +144,7 @@ def test_a_changed_source_is_not_loaded_from_an_old_build(build):
     moved = manifest.with_name("kernels_0000000000000000.json")
     manifest.rename(moved)
     try:
-        out, _ = _run("import json; from uav_agent.planning import jit; print(json.dumps({'mode': jit.MODE}))",
+        out, _ = _run("import json; from uav_agent.planning.compile import jit; print(json.dumps({'mode': jit.MODE}))",
                       _env(build))
         assert out["mode"] == "jit"
     finally:
@@ -162,9 +163,9 @@ def test_a_machine_without_a_compiler_is_told_in_one_line(tmp_path):
 
 @needs_compiler
 def test_numbas_own_switch_runs_the_kernels_interpreted_beside_a_build(build):
-    # interpreted.py's child asks for plain Python with NUMBA_DISABLE_JIT=1: a build there would
+    # build/interpreted.py's child asks for plain Python with NUMBA_DISABLE_JIT=1: a build there would
     # plan in milliseconds what a fresh clone's first run plans interpreted
     env = {**_env(build), "NUMBA_DISABLE_JIT": "1"}
-    out, _ = _run("import json, sys; from uav_agent.planning import jit; "
+    out, _ = _run("import json, sys; from uav_agent.planning.compile import jit; "
                   "print(json.dumps({'mode': jit.MODE, 'interpreted': jit.INTERPRETED}))", env)
     assert out == {"mode": "interpreted", "interpreted": True}

@@ -12,10 +12,10 @@ from scipy.sparse.csgraph import dijkstra
 
 from protocol.errors import PlanningError
 from scenarios.maps import NAMED, place, random_map, warehouse
-from uav_agent.planning.astar import astar
-from uav_agent.planning.paper import paper_astar, paper_prm
-from uav_agent.planning.priority_waits import IncompleteError
-from uav_agent.planning.prm import Roadmap
+from uav_agent.planning.paper.astar import astar
+from uav_agent.planning.paper.pipelines import paper_astar, paper_prm
+from uav_agent.planning.paper.priority_waits import IncompleteError
+from uav_agent.planning.paper.prm import Roadmap
 from uav_agent.planning.types import Limits, Problem
 from uav_agent.planning.validator import validate
 

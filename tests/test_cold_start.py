@@ -12,11 +12,13 @@ import pytest
 
 from protocol.errors import PlanningError
 from scenarios.maps import NAMED, place, resolve_map, warehouse
-from uav_agent.planning import warm
-from uav_agent.planning.interpreted import InterpretedPlanner, fits, plan_interpreted
+from uav_agent.planning.build import warm
+from uav_agent.planning.compile import cache, lock, stale
+from uav_agent.planning.build.interpreted import InterpretedPlanner, fits, plan_interpreted
 from uav_agent.planning.pipeline import plan_mission
 
 ROOT = Path(__file__).resolve().parents[1]
+MAPF = cache.PLANNING_DIR / "mapf"      # where most kernels live, LaCAM's search among them
 
 
 def corridor():
@@ -49,9 +51,9 @@ def instances():
 def compiled():
     """The kernels compiled before any plan is timed, as `uav-robots plan` does: on a fresh clone a
     compile inside the time limit cuts the guide paths short, and the plan differs."""
-    from uav_agent.planning.pipeline import warm_up
+    from uav_agent.planning.build.warm import warm_up
 
-    with warm.kernel_lock():
+    with lock.kernel_lock():
         if not warm.is_warm():
             warm_up("lacam", 4)
 
@@ -117,7 +119,7 @@ def _numba_cache_path(cache_dir: str | None) -> str:
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
     if cache_dir:
         env["NUMBA_CACHE_DIR"] = cache_dir
-    code = "from uav_agent.planning.lacam import _search; print(_search._cache._cache_path)"
+    code = "from uav_agent.planning.mapf.lacam import _search; print(_search._cache._cache_path)"
     env["UAV_ROBOTS_KERNELS"] = "jit"     # numba's dispatchers, even beside an ahead-of-time build
     return subprocess.run([sys.executable, "-c", code], cwd=ROOT, env={**env, "PYTHONPATH": str(ROOT)},
                           capture_output=True, text=True, check=True).stdout.strip()
@@ -125,38 +127,39 @@ def _numba_cache_path(cache_dir: str | None) -> str:
 
 def test_cache_dir_is_where_numba_caches(tmp_path, monkeypatch):
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
-    assert warm.cache_dir() == Path(_numba_cache_path(str(tmp_path)))
+    assert cache.cache_dir(MAPF) == Path(_numba_cache_path(str(tmp_path)))
     monkeypatch.delenv("NUMBA_CACHE_DIR")
-    assert warm.cache_dir() == Path(_numba_cache_path(None))
+    assert cache.cache_dir(MAPF) == Path(_numba_cache_path(None))
 
 
 def test_a_changed_source_empties_numba_cache_once(tmp_path, monkeypatch):
     """numba checks a cached kernel against its own file only; the stamp of every planning source
     beside the cache empties it when any of them changed (an edit of a helper in another file)."""
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
-    d = warm.cache_dir()
+    d, home = cache.cache_dir(MAPF), cache.cache_dir()
     d.mkdir(parents=True)
+    home.mkdir(parents=True)
     old = [d / "lacam._search-277.py311.nbi", d / "lacam._search-277.py311.1.nbc"]
     for f in old:
         f.write_bytes(b"compiled against other sources")
-    (d / "sources.stamp").write_text("kernels_0000000000000000")
-    warm.drop_stale_cache()
+    (home / "sources.stamp").write_text("kernels_0000000000000000")
+    stale.drop_stale_cache()
     assert not any(f.exists() for f in old)
-    assert (d / "sources.stamp").read_text() == warm.build_name()
+    assert (home / "sources.stamp").read_text() == cache.build_name()
     # the same sources: what was cached since stays
     kept = d / "pibt._run-315.py311.nbi"
     kept.write_bytes(b"compiled against these sources")
-    warm.drop_stale_cache()
+    stale.drop_stale_cache()
     assert kept.exists()
     # and a JIT process does it before loading any kernel: a real kernel compiles into the fresh cache
-    code = ("from uav_agent.planning.distances import distance_field; import numpy as np; "
+    code = ("from uav_agent.planning.mapf.distances import distance_field; import numpy as np; "
             "print(distance_field(np.ones((3, 4), dtype=bool), (0, 0), 4)[2, 3])")
-    (d / "sources.stamp").write_text("kernels_0000000000000000")
+    (home / "sources.stamp").write_text("kernels_0000000000000000")
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path), "UAV_ROBOTS_KERNELS": "jit", "PYTHONPATH": str(ROOT)}
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
                           timeout=300)
     assert done.returncode == 0 and done.stdout.strip() == "5", done.stderr[-1000:]
-    assert not kept.exists() and (d / "sources.stamp").read_text() == warm.build_name()
+    assert not kept.exists() and (home / "sources.stamp").read_text() == cache.build_name()
     assert list(d.glob("distances.*.nbi"))
 
 
@@ -164,41 +167,42 @@ def test_every_module_with_kernels_names_the_build():
     """A build (and numba's cache stamp) is named after every module that defines kernels: one
     left out would keep an old build's code after an edit of it (distances.py went missing once its
     import line named more than `njit`)."""
-    with_kernels = {p.name for p in warm.PACKAGE_DIR.glob("*.py") if "@njit(" in p.read_text()}
-    assert with_kernels and with_kernels <= {p.name for p in warm.kernel_sources()}
+    with_kernels = {p for p in cache.PLANNING_DIR.rglob("*.py") if "@njit(" in p.read_text()}
+    assert with_kernels and with_kernels <= set(cache.kernel_sources())
 
 
 def test_warm_needs_every_marker_newer_than_its_source(tmp_path, monkeypatch):
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
-    d = warm.cache_dir()
     assert not warm.is_warm()
-    d.mkdir(parents=True)
     for module, function in warm.MARKERS:
-        (d / f"{module}.{function}-1.py311.nbi").write_bytes(b"")
+        source = cache.source_of(module)
+        d = cache.cache_dir(source.parent)
+        d.mkdir(parents=True, exist_ok=True)
+        (d / f"{source.stem}.{function}-1.py311.nbi").write_bytes(b"")
     assert warm.is_warm()
-    source = warm.PACKAGE_DIR / f"{warm.MARKERS[0][0]}.py"
+    source = cache.source_of(warm.MARKERS[0][0])
     stale = source.stat().st_mtime - 60
-    index = d / f"{warm.MARKERS[0][0]}.{warm.MARKERS[0][1]}-1.py311.nbi"
+    index = cache.cache_dir(source.parent) / f"{source.stem}.{warm.MARKERS[0][1]}-1.py311.nbi"
     os.utime(index, (stale, stale))
-    assert not warm.cached(*warm.MARKERS[0]) and not warm.is_warm()
+    assert not cache.cached(*warm.MARKERS[0]) and not warm.is_warm()
 
 
 def test_one_compiler_at_a_time(tmp_path, monkeypatch):
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))   # a cold cache of the test's own
-    assert not warm.busy()
+    assert not lock.busy()
     compiler = warm.start()
     try:
         assert compiler is not None
         # below the mission it shares the cores with, whether or not a plan will wait for it
         assert os.getpriority(os.PRIO_PROCESS, compiler.pid) == min(19, os.getpriority(os.PRIO_PROCESS, 0) + warm.NICE)
         # the lock was taken before the child started, and the child holds it
-        assert warm.busy()
+        assert lock.busy()
         assert warm.start() is None
-        with warm.kernel_lock(wait=False) as mine:
+        with lock.kernel_lock(wait=False) as mine:
             assert not mine
     finally:
         warm.stop(compiler)
-    assert not warm.busy()
-    with warm.kernel_lock(wait=False) as mine:
+    assert not lock.busy()
+    with lock.kernel_lock(wait=False) as mine:
         assert mine
         assert warm.start() is None      # held here: nobody else starts compiling

@@ -10,7 +10,7 @@ from scipy.sparse.csgraph import shortest_path
 
 from protocol.errors import PlanningError
 from scenarios.maps import random_map
-from uav_agent.planning import distances as D
+from uav_agent.planning.mapf import distances as D
 from uav_agent.planning.types import Problem
 
 

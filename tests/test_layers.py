@@ -35,6 +35,11 @@ def test_the_floors_hold():
     ("uav_robots/view/state.py", "import uav_robots.record.recording", "wings"),
     ("uav_robots/secure/fleet.py", "import uav_robots.bench.secure", "wings"),
     ("uav_robots/record/observer.py", "import uav_robots.secure.fleet", "wings"),
+    # the planning package's wings: compile/ imports no planner, a kernel no portfolio, MAPF not the paper's
+    ("uav_agent/planning/compile/cache.py", "from uav_agent.planning.mapf import lacam", "planning: build"),
+    ("uav_agent/planning/mapf/pibt.py", "from uav_agent.planning import portfolio", "planning: build"),
+    ("uav_agent/planning/mapf/sipp.py", "from uav_agent.planning.paper import astar", "planning: build"),
+    ("uav_agent/planning/pipeline.py", "from uav_agent.planning.build import warm", "planning: build"),
 ])
 def test_a_backward_import_breaks_the_contract(tmp_path, file, line, broken):
     for pkg in PACKAGES:

@@ -20,10 +20,12 @@ from protocol.errors import MapError, PlanningError
 from protocol.mapfile import read_map, read_scen
 from scenarios.benchmarks import movingai_map, movingai_scen, paper_scen, paper_warehouse
 from scenarios.maps import place, random_map
-from uav_agent.planning.distances import compile_problem
-from uav_agent.planning.lacam import lacam, refine, search, trimmed, warm_up
-from uav_agent.planning.pibt import history_to_paths, pibt
-from uav_agent.planning.prioritized import guide_paths, max_expansions, prioritized, split_paths
+from uav_agent.planning.mapf.distances import compile_problem
+from uav_agent.planning.mapf.lacam import search
+from uav_agent.planning.mapf.refine import refine, trimmed
+from uav_agent.planning.portfolio import lacam, warm_up
+from uav_agent.planning.mapf.pibt import history_to_paths, pibt
+from uav_agent.planning.mapf.prioritized import guide_paths, max_expansions, prioritized, split_paths
 from uav_agent.planning.types import Limits, Problem, sum_of_costs
 from uav_agent.planning.validator import check
 

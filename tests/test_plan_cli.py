@@ -13,7 +13,7 @@ import pytest
 
 from protocol.mapfile import ScenAgent, write_map, write_scen
 from scenarios.maps import NAMED, place, warehouse
-from uav_agent.planning import warm
+from uav_agent.planning.compile import cache
 from uav_agent.planning.plan_io import read_plan
 from uav_robots import cli
 
@@ -222,7 +222,7 @@ def test_bench_command_times_whole_processes(paper_data, tmp_path):
         assert float(r["min_wall_s"]) <= float(r["median_wall_s"]) <= float(r["max_wall_s"])
     assert rows[0]["lacam3_whole_s"] == "0.11" and rows[1]["lacam3_whole_s"] == ""
     runs = list(csv.DictReader((out / "command-runs.csv").open()))
-    assert len(runs) == 4 * (2 if warm.built() else 1)
+    assert len(runs) == 4 * (2 if cache.built() else 1)
     assert "whole command" in (out / "command.md").read_text()
 
 

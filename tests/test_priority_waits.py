@@ -8,8 +8,8 @@ from hypothesis import strategies as st
 
 from protocol.errors import PlanningError
 from scenarios.maps import place, random_map
-from uav_agent.planning.astar import astar
-from uav_agent.planning.priority_waits import IncompleteError, priority_waits
+from uav_agent.planning.paper.astar import astar
+from uav_agent.planning.paper.priority_waits import IncompleteError, priority_waits
 from uav_agent.planning.types import Limits, Problem
 from uav_agent.planning.validator import validate
 

@@ -9,7 +9,7 @@ import numpy as np
 from protocol.mapfile import read_map, read_scen
 from scenarios.benchmarks import movingai_map, movingai_scen
 from uav_agent.planning.pipeline import plan_mission
-from uav_agent.planning.refine import improve
+from uav_agent.planning.mapf.refine import improve
 from uav_agent.planning.types import Problem, sum_of_costs
 from uav_agent.planning.validator import check
 

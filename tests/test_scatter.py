@@ -6,12 +6,13 @@ import pytest
 
 from protocol.mapfile import read_map, read_scen
 from scenarios.benchmarks import movingai_map, movingai_scen
-from uav_agent.planning.distances import compile_problem
-from uav_agent.planning.grid_kernels import grid_of
-from uav_agent.planning.lacam import lacam, search, warm_up
-from uav_agent.planning.pibt import history_to_paths
-from uav_agent.planning.scatter import MARGIN, _scatter, routes
-from uav_agent.planning.sipp import hm_slot
+from uav_agent.planning.mapf.distances import compile_problem
+from uav_agent.planning.mapf.grid_kernels import grid_of
+from uav_agent.planning.mapf.lacam import search
+from uav_agent.planning.portfolio import lacam, warm_up
+from uav_agent.planning.mapf.pibt import history_to_paths
+from uav_agent.planning.mapf.scatter import MARGIN, _scatter, routes
+from uav_agent.planning.mapf.sipp import hm_slot
 from uav_agent.planning.types import Limits, Problem, sum_of_costs
 from uav_agent.planning.validator import check
 
@@ -109,7 +110,7 @@ def test_routes_make_lacam_plan_a_crowded_warehouse_cheaper():
 
 
 def test_a_floor_too_large_for_the_tables_gets_no_routes(monkeypatch):
-    from uav_agent.planning import scatter
+    from uav_agent.planning.mapf import scatter
 
     free = np.ones((6, 6), bool)
     starts = [(x, 0) for x in range(6)] + [(x, 5) for x in range(6)]

@@ -93,8 +93,8 @@ def _plan_interpreted(free, starts, goals, options: dict, refine_s: float):
     (the same plan, in seconds: 50 robots on the 450 warehouse in 3 s) instead of after their
     compile; None otherwise. Not with --refine: its neighbourhoods are as many as its seconds allow,
     and interpreted far fewer fit."""
-    from uav_agent.planning import warm
-    from uav_agent.planning.interpreted import fits, plan_interpreted
+    from uav_agent.planning.build import warm
+    from uav_agent.planning.build.interpreted import fits, plan_interpreted
 
     if refine_s or warm.is_warm() or not fits(free, len(starts), len(goals)):
         return None
@@ -111,14 +111,15 @@ def _compile_first(planner: str, connectivity: int) -> None:
     the time limit cut the guide paths short (50 robots on the 450 warehouse: sum of costs
     14251 instead of 13851), and the same command must give the same plan on every run. The
     lock keeps a mission or another command from compiling the same cache at once."""
-    from uav_agent.planning import warm
+    from uav_agent.planning.build import warm
     if warm.is_warm():
         return
-    from uav_agent.planning.pipeline import warm_up
+    from uav_agent.planning.build.warm import warm_up
+    from uav_agent.planning.compile.lock import kernel_lock
 
     print("compiling the planners' kernels (first run on this machine only; later runs load numba's cache; "
           "`uav-robots build` compiles them ahead of time instead)", flush=True)
-    with warm.kernel_lock():
+    with kernel_lock():
         if not warm.is_warm():       # unless another process just compiled them
             warm_up(planner, connectivity)
 
@@ -169,9 +170,10 @@ def add_build_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def cmd_build(args) -> int:
-    from uav_agent.planning import aot, warm
-    if warm.built():
-        print(f"the planner kernels are built already ({warm.build_dir()})")
+    from uav_agent.planning.build import aot
+    from uav_agent.planning.compile import cache
+    if cache.built():
+        print(f"the planner kernels are built already ({cache.build_dir()})")
         return 0
     lacking = aot.missing_tools()
     if lacking is not None:

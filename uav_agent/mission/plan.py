@@ -11,7 +11,7 @@ from .context import MissionContext
 
 def start_warm_up(ctx: MissionContext) -> None:
     """The planners' kernels compiled (a fresh clone) or loaded while the vehicle flies the survey."""
-    from ..planning.warm import is_warm
+    from ..planning.build.warm import is_warm
 
     c = ctx.compile
     c.compiling = not is_warm()   # a fresh clone: the kernels compile during the flight
@@ -21,15 +21,15 @@ def start_warm_up(ctx: MissionContext) -> None:
 
 def start_interpreter(ctx: MissionContext) -> None:
     if ctx.compile.compiling:
-        from ..planning.interpreted import InterpretedPlanner
+        from ..planning.build.interpreted import InterpretedPlanner
         # its interpreter and imports while the vehicle climbs (the link's set-up before
         # took its CPU: the connection came 0.6 s later)
         ctx.compile.interpreter = InterpretedPlanner()
 
 
 def _warm_up(ctx: MissionContext) -> None:
-    from ..planning import warm
-    from ..planning.pipeline import warm_up
+    from ..planning.build import warm
+    from ..planning.compile.lock import kernel_lock
     from ..planning.registry import DEFAULT_PLANNER
 
     cfg = ctx.cfg
@@ -38,9 +38,9 @@ def _warm_up(ctx: MissionContext) -> None:
         # here): compiling on this thread would hold the GIL through the survey.
         if ctx.compile.compiling:
             warm.start(cfg.planner, cfg.connectivity)
-        with warm.kernel_lock():
+        with kernel_lock():
             if not ctx.compile.skip_warm.is_set():   # planned without them: loading now would only stall
-                warm_up(cfg.planner or DEFAULT_PLANNER, cfg.connectivity)
+                warm.warm_up(cfg.planner or DEFAULT_PLANNER, cfg.connectivity)
     except Exception:  # noqa: BLE001 - the real plan call reports any problem properly
         pass
 
@@ -100,7 +100,7 @@ def plan_while_compiling(ctx: MissionContext, free, starts, goals, options):
     clone's first run): a few seconds for the missions `uav-robots run` flies (the 450x450
     warehouse's 50 robots: about 2 s, against half a minute's wait); None when the instance is
     too large for that or the interpreted run failed: the caller then waits for the kernels."""
-    from ..planning.interpreted import InterpretedPlanner, fits
+    from ..planning.build.interpreted import InterpretedPlanner, fits
 
     c = ctx.compile
     ahead, c.interpreter = c.interpreter, None   # the child started at takeoff serves once

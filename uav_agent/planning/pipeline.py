@@ -5,8 +5,6 @@ every result it returns has passed the independent validator.
 """
 from __future__ import annotations
 
-import subprocess
-import sys
 import time
 from dataclasses import dataclass, field
 
@@ -17,8 +15,8 @@ from protocol.grid import on_grid
 
 from .assignment import DEFAULT_ASSIGNMENT, check_mode
 from .assignment import assign as assign_goals
-from .distances import cost_matrix
-from .registry import DEFAULT_PLANNER, check_name, get_planner, is_complete
+from .mapf.distances import cost_matrix
+from .registry import DEFAULT_PLANNER, SPECS, check_name, get_planner, is_complete
 from .types import Cell, Limits, Path, Problem, makespan, sum_of_costs
 from .validator import check
 
@@ -81,7 +79,7 @@ def _check_input(free, starts, goals, planner, assign, connectivity, time_limit)
 
 # Refinement keeps every robot's start and goal and only shortens arrivals: any planner's
 # conflict-free plan is a valid start, but the paper's pipelines are meant to be shown as they are.
-REFINABLE = frozenset({"lacam", "pibt", "prioritized"})
+REFINABLE = frozenset(s.name for s in SPECS if s.refinable)
 
 
 def _run(name: str, problem: Problem, limits: Limits) -> list[Path]:
@@ -101,7 +99,7 @@ def plan_mission(free: np.ndarray, starts: list[Cell], goals: list[Cell], *,
     cannot resolve a conflict, PIBT livelocks, ...) or returns an invalid plan, the default
     planner solves the same assignment and a note says why; False re-raises.
     refine_s: then up to this many seconds (within the time limit) of large-neighbourhood search
-    (`refine.py`) on the plan, which is validated again; done at once when nothing is delayed.
+    (`mapf/refine.py`) on the plan, which is validated again; done at once when nothing is delayed.
     """
     limits = Limits(time_limit)
     t0 = time.perf_counter()
@@ -147,7 +145,7 @@ def plan_mission(free: np.ndarray, starts: list[Cell], goals: list[Cell], *,
     timings["planning"] = time.perf_counter() - t - validation
     refined: dict[str, float] = {}
     if refine_s > 0 and used in REFINABLE:
-        from .refine import improve
+        from .mapf.refine import improve
 
         t = time.perf_counter()
         before = sum_of_costs(paths, assigned)
@@ -174,45 +172,3 @@ def plan_mission(free: np.ndarray, starts: list[Cell], goals: list[Cell], *,
     return PlanResult(starts=starts, goals=assigned, assignment=order, paths=paths, planner=used,
                       requested=planner, assign=assign, connectivity=connectivity, fell_back=fell_back,
                       notes=notes, timings=timings, metrics=metrics)
-
-
-COMPILE_TIMEOUT_S = 900.0
-
-
-def warm_up(planner: str = DEFAULT_PLANNER, connectivity: int = 4) -> float:
-    """Compile the planners' numba kernels (or load them from the on-disk cache) on tiny instances.
-
-    `warm.py`'s process calls this to compile them on a fresh machine while the UAV takes
-    off, and the UAV on a background thread to load them from the cache, so that no
-    mission pays either inside its plan phase.
-    Every fast kernel is loaded, whatever the planner: lacam is every other
-    planner's fallback. On a cold cache a second process compiles LaCAM's search
-    while this one compiles the prioritized planner: numba holds the GIL while it
-    compiles, so only a process uses the second core (about 45 s -> 28 s here).
-    """
-    from protocol.process import die_with_parent
-
-    from .jit import AHEAD_OF_TIME
-    from .lacam import warm_up as warm_up_fast_planners
-    from .warm import cached, child_env
-
-    t = time.perf_counter()
-    aside = None
-    if not AHEAD_OF_TIME and not cached("lacam", "_search"):
-        code = "from uav_agent.planning.lacam import warm_up; warm_up(parts=('search', 'pibt'))"
-        env = child_env()
-        aside = subprocess.Popen([sys.executable, "-c", code], env=env, stdin=subprocess.DEVNULL,
-                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=die_with_parent)
-    try:
-        warm_up_fast_planners(parts=("guides",))
-        if aside is not None:
-            aside.wait(timeout=COMPILE_TIMEOUT_S)
-        warm_up_fast_planners(parts=("guides", "search", "pibt"))
-        free = np.ones((6, 6), dtype=bool)
-        plan_mission(free, [(0, 0), (5, 5)], [(5, 5), (0, 0)], planner=planner, connectivity=connectivity,
-                     time_limit=600.0, fallback=True)
-    finally:
-        if aside is not None and aside.poll() is None:
-            aside.kill()
-            aside.wait()
-    return time.perf_counter() - t

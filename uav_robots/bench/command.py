@@ -69,10 +69,10 @@ def add_parser(sub) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     from scenarios.benchmarks import paper_map_spec, paper_scen
-    from uav_agent.planning import warm
+    from uav_agent.planning.compile import cache
 
     # with a build, each size is timed both ways in turn; without one, numba's JIT alone
-    modes = ["jit", "aot"] if warm.built() else ["jit"]
+    modes = ["jit", "aot"] if cache.built() else ["jit"]
     sizes = parse_sizes(args.sizes)
     scen, map_spec = paper_scen(1, args.data), paper_map_spec(args.data)
     rows, summary, runs = [], [], []
@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
         + (", in turn (JIT, then ahead of time)" if len(modes) == 2 else "") + ", after one untimed run of each.",
         "Whole command: wall time of `python -m uav_robots plan ... --out FILE`, from process start to exit "
         "(interpreter, imports, loading the kernels, map and scenario, planning, validation, writing the plan).",
-        "Built ahead of time: the kernels of `uav-robots build` (uav_agent/planning/aot.py), loaded without numba; "
+        "Built ahead of time: the kernels of `uav-robots build` (uav_agent/planning/build/aot.py), loaded without numba; "
         "numba JIT: the command with UAV_ROBOTS_KERNELS=jit and numba's cache warm (numba's import and its "
         "compiler's set-up are in every process)" + ("" if len(modes) == 2 else
                                                       "; no build was there, so only the JIT was timed") + ".",

@@ -62,7 +62,7 @@ def _emit(obj: dict[str, Any]) -> None:
 def _warmup(planners: set[str], assign: str, connectivity: int) -> dict[str, float]:
     """First and second call of each planner on a small warehouse: the first includes numba's JIT."""
     from scenarios.maps import NAMED, place, warehouse
-    from uav_agent.planning.lacam import warm_up as warm_up_fast_planners
+    from uav_agent.planning.portfolio import warm_up as warm_up_fast_planners
     from uav_agent.planning.pipeline import plan_mission
 
     free = warehouse(**NAMED["warehouse-small"])
@@ -83,7 +83,7 @@ def worker_main() -> int:
     t = time.perf_counter()
     from protocol.mapfile import read_scen
     from scenarios.benchmarks import load_map
-    from uav_agent.planning.distances import clear_cache
+    from uav_agent.planning.mapf.distances import clear_cache
     from uav_agent.planning.pipeline import plan_mission
     imports = time.perf_counter() - t
     if jobs:

@@ -164,7 +164,7 @@ class Launcher:
 
     def start(self) -> Child:
         """Starts the UAV and the world (`start_robots` the robots)."""
-        from uav_agent.planning import warm
+        from uav_agent.planning.build import warm
 
         a = self.args
         common = ["--fleet", self.fleet]
@@ -291,7 +291,7 @@ class Launcher:
             if c.tee is not None:
                 c.tee.join(2.0)   # its last lines (a grandchild holding the pipes open is not waited for)
         if self.compiler is not None:
-            from uav_agent.planning import warm
+            from uav_agent.planning.build import warm
 
             warm.stop(self.compiler)   # what it compiled so far is cached; the next run goes on from there
 

@@ -2,7 +2,7 @@
 
 The kernels check their deadline (`time.perf_counter() + seconds`, from Python) every few
 hundred iterations. numba's object mode could call `time.perf_counter`, but an object-mode
-block needs an environment that only the JIT builds: an ahead-of-time build (`aot.py`)
+block needs an environment that only the JIT builds: an ahead-of-time build (`build/aot.py`)
 cannot hold one. So the kernels call the C library's `clock_gettime(CLOCK_MONOTONIC)`, the
 clock behind `time.perf_counter` on Linux, directly.
 """

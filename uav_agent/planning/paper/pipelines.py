@@ -14,7 +14,7 @@ from protocol.errors import PlanningError
 from .astar import astar, check_cell, padded
 from .priority_waits import priority_waits
 from .prm import Roadmap
-from .types import Limits, Path, Problem
+from ..types import Limits, Path, Problem
 
 # one roadmap sample per this many free cells: in a warehouse with 2-wide aisles
 # sparser roadmaps fall apart into pieces that cannot see each other

@@ -23,9 +23,9 @@ for Decoupled Path Planning Techniques for Teams of Mobile Robots", Robotics
 and Autonomous Systems 2002), with random reorders after a few tries, up to
 MAX_TRIES orders or the time limit.
 
-`guide_paths` is one pass that skips the robots it cannot route: LaCAM
-(`lacam.py`) uses its paths as a plan when complete and as PIBT's guides
-otherwise.
+`guide_paths` is one pass that skips the robots it cannot route: the default
+planner (`planning/portfolio.py`) uses its paths as a plan when complete and as
+LaCAM's PIBT's guides otherwise.
 """
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ import math
 import time
 
 import numpy as np
-from .jit import njit
+from ..compile.jit import njit
 
 from protocol.errors import PlanningError, PlanningTimeout
 
@@ -52,7 +52,7 @@ from .reservations import (
     unreserve,
 )
 from .sipp import sipp
-from .types import Limits, Path, Problem
+from ..types import Limits, Path, Problem
 
 UNBOUNDED = np.int64(2**40)      # an f bound that never cuts a search (int64, not a literal: see blockers)
 MAX_TRIES = 100                  # orders tried before prioritized planning gives up

@@ -16,12 +16,12 @@ import heapq
 import math
 
 import numpy as np
-from .jit import njit
+from ..compile.jit import njit
 
 from protocol.errors import PlanningError
 from protocol.grid import on_grid
 
-from .types import Cell, Limits
+from ..types import Cell, Limits
 
 
 def padded(free: np.ndarray) -> np.ndarray:

@@ -1,10 +1,10 @@
 """The planning kernels compiled ahead of time into two extension modules (numba's pycc).
 
-`uav-robots build` (`python -m uav_agent.planning.aot`) builds them in two steps, each in
+`uav-robots build` (`python -m uav_agent.planning.build.aot`) builds them in two steps, each in
 processes of their own:
 
 1. **record**: the planners run on tiny instances with the kernels interpreted
-   (`jit.py`'s record mode), every planner, both connectivities, narrow and wide
+   (`compile/jit.py`'s record mode), every planner, both connectivities, narrow and wide
    distance rows; each call of a kernel from Python notes its argument types;
 2. **compile**: numba's pycc compiles every recorded (kernel, argument types) pair, with
    the kernels they call inlined or linked in, into a shared library with the system's
@@ -12,7 +12,7 @@ processes of their own:
    libraries (two kernel families) side by side on two cores.
 
 The libraries and their manifest (kernel -> argument kinds -> exported function) go to
-`warm.build_dir()` under `warm.build_name()` (the kernel sources, Python, NumPy and the
+`compile.cache.build_dir()` under `compile.cache.build_name()` (the kernel sources, Python, NumPy and the
 CPU), the manifest last: a process that finds it loads the kernels without numba; a
 changed source names another build. A machine without Linux, a C compiler or Python's
 headers keeps numba's JIT. Nothing builds by itself: `uav-robots build` is run once.
@@ -34,6 +34,8 @@ import time
 import warnings
 from pathlib import Path
 
+from ..registry import REFINE_KERNELS, REFINE_LIBRARY, SPECS
+
 BUILD_TIMEOUT_S = 1800.0
 
 
@@ -41,15 +43,15 @@ def _record_workload() -> None:
     """Every kernel call the planners make from Python, on tiny instances (record mode)."""
     import numpy as np
 
-    from . import distances
-    from .distances import clear_cache, compile_problem
-    from .lacam import search
-    from .pipeline import plan_mission
-    from .prioritized import guide_paths
-    from .refine import improve, refine, trimmed
-    from .registry import PLANNERS
-    from .scatter import routes
-    from .types import Limits, Problem
+    from ..mapf import distances
+    from ..mapf.distances import clear_cache, compile_problem
+    from ..mapf.lacam import search
+    from ..mapf.prioritized import guide_paths
+    from ..mapf.refine import improve, refine, trimmed
+    from ..mapf.scatter import routes
+    from ..pipeline import plan_mission
+    from ..registry import PLANNERS
+    from ..types import Limits, Problem
 
     free = np.ones((7, 9), dtype=bool)
     free[2, 1:8] = False
@@ -80,7 +82,7 @@ def _record_workload() -> None:
 
 
 def record(out: Path) -> None:
-    from . import jit
+    from ..compile import jit
     if jit.MODE != "record":
         raise SystemExit("run the record step with UAV_ROBOTS_KERNELS=record and NUMBA_DISABLE_JIT=1")
     import numpy as np
@@ -91,9 +93,14 @@ def record(out: Path) -> None:
     out.write_bytes(pickle.dumps(jit.RECORDED))
 
 
+def _modules(kernels) -> set[str]:
+    return {f"uav_agent.planning.{k.rsplit('.', 1)[0]}." for k in kernels}
+
+
 # Two libraries, compiled side by side on two cores: each family with the kernels it links in
-SECOND_LIBRARY = ("uav_agent.planning.lacam.", "uav_agent.planning.pibt.", "uav_agent.planning.refine.",
-                  "uav_agent.planning.scatter.")
+SECOND_LIBRARY = tuple(sorted(
+    _modules(k for s in SPECS if s.aot_library == 1 for k in s.kernels)
+    | (_modules(REFINE_KERNELS) if REFINE_LIBRARY == 1 else set())))
 
 
 def compile_recorded(records: dict, out_dir: Path, name: str) -> dict[str, list]:
@@ -164,14 +171,15 @@ def _work_dir(out_dir: Path) -> Path:
 def build(timeout: float = BUILD_TIMEOUT_S) -> Path:
     """Records, then compiles two libraries side by side, each step in child processes; writes
     the manifest last and returns its path."""
-    from .warm import build_dir, build_name, child_env
+    from ..compile.cache import build_dir, build_name
+    from .child import child_env
     name = build_name()
     out_dir = build_dir()
     tmp = _work_dir(out_dir)
     try:
         rec = tmp / "recorded.pkl"
         with open(tmp / "record.err", "w") as err:
-            done = subprocess.run([sys.executable, "-m", "uav_agent.planning.aot", "--record", str(rec)],
+            done = subprocess.run([sys.executable, "-m", "uav_agent.planning.build.aot", "--record", str(rec)],
                                   env=child_env(UAV_ROBOTS_KERNELS="record", NUMBA_DISABLE_JIT="1",
                                                  TMPDIR=str(tmp)),
                                   timeout=timeout, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err)
@@ -185,7 +193,7 @@ def build(timeout: float = BUILD_TIMEOUT_S) -> Path:
             (tmp / f"part{i}.pkl").write_bytes(pickle.dumps(part))
             with open(tmp / f"part{i}.err", "w") as err:
                 jobs.append(subprocess.Popen(
-                    [sys.executable, "-m", "uav_agent.planning.aot", "--compile", str(tmp / f"part{i}.pkl"),
+                    [sys.executable, "-m", "uav_agent.planning.build.aot", "--compile", str(tmp / f"part{i}.pkl"),
                      "--name", f"{name}_{i}", "--out", str(out_dir)],
                     env=child_env(UAV_ROBOTS_KERNELS="jit", TMPDIR=str(tmp)), stdin=subprocess.DEVNULL,
                     stdout=subprocess.DEVNULL, stderr=err))
@@ -225,7 +233,7 @@ def missing_tools() -> str | None:
 
 def build_once() -> int:
     """`build` unless another process is building: 0 when built (or being built), 1 on failure."""
-    from .warm import kernel_lock
+    from ..compile.lock import kernel_lock
 
     lacking = missing_tools()
     if lacking is not None:
@@ -247,7 +255,7 @@ def build_once() -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m uav_agent.planning.aot",
+    p = argparse.ArgumentParser(prog="python -m uav_agent.planning.build.aot",
                                 description="Compile the planning kernels ahead of time (numba pycc + the C compiler).")
     p.add_argument("--record", type=Path, help=argparse.SUPPRESS)
     p.add_argument("--compile", type=Path, help=argparse.SUPPRESS)

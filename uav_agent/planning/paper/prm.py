@@ -21,13 +21,13 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from .jit import njit
+from ..compile.jit import njit
 from scipy.spatial import cKDTree
 
 from protocol.errors import PlanningError
 
 from .astar import check_cell, padded, trace_back
-from .types import Cell, Limits
+from ..types import Cell, Limits
 
 # Without a radius or k, the radius is the one whose disc would hold this many
 # samples on an open floor. It is large on purpose: in a warehouse most of them

@@ -16,7 +16,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from .jit import njit
+from ..compile.jit import njit
 
 from .grid_kernels import Geometry, copy_into, corners, grow, is_diagonal
 

@@ -15,6 +15,8 @@ livelock; with it a robot that would have to push another back down a
 corridor pulls it through instead. PIBT alone can still cycle forever, so
 `pibt` gives up with a PlanningError after a step cap or the time limit;
 `lacam.py` uses `pibt_step` as its configuration generator and is complete.
+
+A plain-Python reading copy of PIBT, without the swap technique: `planning/reference/pibt.py`.
 """
 from __future__ import annotations
 
@@ -22,7 +24,7 @@ import time
 from typing import NamedTuple
 
 import numpy as np
-from .jit import njit
+from ..compile.jit import njit
 
 from protocol.errors import PlanningError
 
@@ -38,7 +40,7 @@ from .grid_kernels import (
     order_by_priority,
     rand_next,
 )
-from .types import Limits, Path, Problem
+from ..types import Limits, Path, Problem
 
 
 class Pibt(NamedTuple):

@@ -16,7 +16,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from .jit import njit
+from ..compile.jit import njit
 
 from .distances import Instance, compile_problem
 from .grid_kernels import (
@@ -45,7 +45,7 @@ from .reservations import (
     unreserve,
 )
 from .sipp import sipp
-from .types import Path, Problem
+from ..types import Path, Problem
 
 REFINE_EXPANSIONS = 50_000     # per replanning search: a refinement round must stay short
 TOURNAMENT = 8                 # random robots a round's seed is the most delayed of

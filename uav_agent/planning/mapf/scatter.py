@@ -18,7 +18,7 @@ import time
 from typing import NamedTuple
 
 import numpy as np
-from .jit import njit
+from ..compile.jit import njit
 
 from .distances import Instance
 from .grid_kernels import Grid, grid_of, grow, now, seeded, shuffle

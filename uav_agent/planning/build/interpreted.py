@@ -3,12 +3,12 @@
 On a fresh clone the kernels take tens of seconds to compile; the missions `uav-robots run`
 flies (8 robots on 24x18 by default, 50 on the 450x450 warehouse) plan in one to three seconds
 when the very same code runs as plain Python. So while `warm.py`'s process compiles, such an
-instance is planned by `python -m uav_agent.planning.interpreted` with NUMBA_DISABLE_JIT=1
+instance is planned by `python -m uav_agent.planning.build.interpreted` with NUMBA_DISABLE_JIT=1
 (numba's switch to call the decorated functions as they are written; it is read when numba is
 imported, hence a process of its own). Same functions, same seeds, same plans: only slower,
 which is why `fits` bounds the instance. The one kernel that visits every cell for every goal,
 the breadth-first distance fields, runs as SciPy's compiled Dijkstra instead, with the same
-numbers (`distances._scipy_rows`): interpreted, 50 fields of the 450x450 warehouse took 11 s.
+numbers (`mapf/distances._scipy_rows`): interpreted, 50 fields of the 450x450 warehouse took 11 s.
 
 The child reads the instance as JSON on stdin and writes the PlanResult as JSON on stdout;
 a planning error becomes exit 2 and its message on stderr, the time limit reached exit 3 (the
@@ -50,11 +50,11 @@ class InterpretedPlanner:
 
     def __init__(self) -> None:
         from protocol.process import die_with_parent
-        from .warm import child_env
+        from .child import child_env
 
         try:
             self._proc: subprocess.Popen | None = subprocess.Popen(
-                [sys.executable, "-m", "uav_agent.planning.interpreted"], stdin=subprocess.PIPE,
+                [sys.executable, "-m", "uav_agent.planning.build.interpreted"], stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=child_env(NUMBA_DISABLE_JIT="1"),
                 preexec_fn=die_with_parent)
         except OSError as exc:
@@ -66,9 +66,9 @@ class InterpretedPlanner:
         Raises PlanningError as plan_mission would, and RuntimeError when the child could not
         start, crashed or reached the time limit at the interpreter's pace: then the caller can
         still plan with the compiled kernels."""
-        from .pipeline import PlanResult
-        from .validator import check
-        from .types import Problem
+        from ..pipeline import PlanResult
+        from ..types import Problem
+        from ..validator import check
 
         if self._proc is None:
             raise RuntimeError(self._error)
@@ -111,7 +111,7 @@ def plan_interpreted(free: np.ndarray, starts, goals, **options):
 
 
 def main() -> int:
-    from .pipeline import plan_mission
+    from ..pipeline import plan_mission
 
     importlib.import_module("scipy.optimize")   # the assignment's, half a second: before the instance arrives
 

@@ -17,11 +17,14 @@ moves straight on); for the other neighbours, and for every interval after the
 first one a neighbour can enter, it leaves a deferred record that is worked out
 when its lower bound comes up. Busy cells have dozens of intervals and most side
 steps are never needed.
+
+A plain-Python reading copy, with every successor generated at once:
+`planning/reference/sipp.py`.
 """
 from __future__ import annotations
 
 import numpy as np
-from .jit import njit
+from ..compile.jit import njit
 
 from .grid_kernels import (
     Geometry,

@@ -20,11 +20,11 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-from .jit import INTERPRETED, njit
+from ..compile.jit import INTERPRETED, njit
 
 from protocol.errors import PlanningError
 
-from .types import Cell, Problem
+from ..types import Cell, Problem
 
 THREADS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
 UNREACHABLE_16 = np.iinfo(np.uint16).max
@@ -236,7 +236,7 @@ def _bfs_rows(base: np.ndarray, pitch: int, diagonal: bool, padded: np.ndarray, 
 
 def _scipy_rows(nbr: np.ndarray, sources: np.ndarray, out: np.ndarray, sentinel: int) -> int:
     """`_bfs_rows`'s numbers by SciPy's compiled Dijkstra on unit steps, for a process whose
-    kernels run interpreted (a fresh clone's first plan, interpreted.py): 50 fields of the
+    kernels run interpreted (a fresh clone's first plan, build/interpreted.py): 50 fields of the
     450x450 warehouse in 1 s instead of 11 s."""
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import dijkstra

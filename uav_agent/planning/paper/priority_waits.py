@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from protocol.errors import PlanningError
 
-from .types import Cell, Limits, Path, Problem
+from ..types import Cell, Limits, Path, Problem
 
 
 class IncompleteError(PlanningError):

@@ -28,8 +28,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from . import jit
-from .jit import njit
+from ..compile import jit
+from ..compile.jit import njit
 
 from .distances import Instance
 
