@@ -154,7 +154,8 @@ class Site:
     """Our world in this process: the floor's truth, the move service, the camera and the MAVLink vehicle."""
 
     def __init__(self, hub: Hub, opts: UavOptions) -> None:
-        from sim_world.world import World, WorldConfig
+        from sim_world.config import WorldConfig
+        from sim_world.service import World
 
         self.mavlink_port = free_udp_port()
         self.gcs_port = free_udp_port()   # the operator's link (the flight link answers the UAV only)

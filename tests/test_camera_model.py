@@ -397,7 +397,8 @@ def test_the_readme_documents_every_camera_key_with_its_default():
 def test_a_realistic_world_serves_jpeg_frames_with_an_estimated_pose_and_its_landmarks():
     from protocol.messages import CameraFrame, CameraRequest, WorldInfo, WorldInfoRequest, decode, encode
     from protocol.transport import MemoryBus, MemoryTransport
-    from sim_world.world import World, WorldConfig
+    from sim_world.config import WorldConfig
+    from sim_world.service import World
 
     bus = MemoryBus()
     camera = {**camera_options("realistic"), "width": 1200, "height": 900}

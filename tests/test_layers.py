@@ -28,7 +28,7 @@ def test_the_floors_hold():
 
 
 @pytest.mark.parametrize("file, line, broken", [
-    ("protocol/keys.py", "import sim_world.world", "floors"),
+    ("protocol/keys.py", "import sim_world.service", "floors"),
     ("sim_world/moves.py", "from uav_agent import fleet", "floors"),
     ("robot_agents/robot.py", "import scenarios.maps", "a robot process imports nothing but the protocol"),
     ("uav_agent/fleet.py", "import uav_robots.launcher", "floors"),

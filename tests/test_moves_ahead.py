@@ -12,7 +12,8 @@ from protocol.keys import Keys, format_ids, new_fleet_name
 from protocol.messages import MoveAhead, MovesJudged, Plan, Record, RecordRequest, Tick, decode, encode
 from protocol.transport import MemoryBus, MemoryTransport
 from scenes import open_map
-from sim_world.world import World, WorldConfig
+from sim_world.config import WorldConfig
+from sim_world.service import World
 from uav_agent.fleet import FleetLink
 from uav_robots.bench_ticks import Children, _endpoint, _hub, lanes, write_scen
 

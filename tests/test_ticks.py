@@ -13,7 +13,8 @@ from protocol.keys import Keys
 from protocol.messages import Plan, StateBatch, Tick, encode
 from protocol.transport import MemoryBus, MemoryTransport
 from robot_agents.agent import run_robots
-from sim_world.world import World, WorldConfig
+from sim_world.config import WorldConfig
+from sim_world.service import World
 from scenes import open_map
 from uav_agent.fleet import FleetLink
 from uav_robots.bench_ticks import lanes

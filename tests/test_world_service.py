@@ -18,7 +18,8 @@ from protocol.keys import Keys
 from protocol.messages import (CameraFrame, CameraRequest, MissionEnd, MoveRequest, MoveResult, Record, RecordRequest,
                                WorldInfo, WorldInfoRequest, decode, encode)
 from protocol.transport import MemoryBus, MemoryTransport, ZenohTransport
-from sim_world.world import World, WorldConfig
+from sim_world.config import WorldConfig
+from sim_world.service import World
 from scenes import open_map
 
 REPO = Path(__file__).resolve().parents[1]

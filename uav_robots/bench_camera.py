@@ -20,7 +20,7 @@ from pathlib import Path
 
 from scenarios.maps import place, resolve_map
 from sim_world.camera import PoseEstimator, Scene, VehicleView, camera_model_from, capture_frame, scene_landmarks
-from sim_world.world import DRONE_CAMERA
+from sim_world.config import DRONE_CAMERA
 from uav_agent.survey import survey_poses
 
 CASES = {

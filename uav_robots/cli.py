@@ -85,7 +85,7 @@ def add_view_arguments(p) -> None:
 _SUBCOMMANDS = {
     "run": (__name__, "_add_run"),
     "uav": ("uav_agent.cli", "add_uav_parser"),
-    "world": ("sim_world.world", "add_world_parser"),
+    "world": ("sim_world.cli", "add_world_parser"),
     "vehicle": ("sim_world.vehicle_cli", "add_vehicle_parser"),
     "robot": ("robot_agents.agent", "add_robot_parser"),
     "plan": ("uav_robots.plan_cli", "add_plan_parser"),

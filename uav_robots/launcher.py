@@ -33,7 +33,7 @@ from protocol.process import die_with_parent
 from protocol.security import robot_identity
 from robot_agents import forked
 from robot_agents.faults import parse_fault
-from sim_world.world import is_world_fault
+from sim_world.faults import is_world_fault
 
 from . import outputs
 from .camera_wiring import camera_wiring
@@ -215,7 +215,8 @@ class Launcher:
         flies it on its MAVLink port, the world follows its pose on a third link, the same path as with
         any autopilot's telemetry."""
         from sim_world.camera import CameraModel
-        from sim_world.world import DRONE_CAMERA, camera_options, fence_reach_m
+        from sim_world.camera.model import camera_options
+        from sim_world.config import DRONE_CAMERA, fence_reach_m
 
         a = self.args
         if getattr(a, "autopilot", None):
@@ -399,8 +400,9 @@ def check_arguments(args) -> tuple[str, object]:
     from scenarios.limits import check_fleet, check_floor
     from scenarios.maps import place, resolve_map
     from sim_world.camera import CameraModel
-    from sim_world.world import (DRONE_CAMERA, MOVE_BATCH_TIMEOUT_S, WorldConfig, camera_options, world_faults,
-                                 vehicle_config)
+    from sim_world.camera.model import camera_options
+    from sim_world.config import DRONE_CAMERA, MOVE_BATCH_TIMEOUT_S, WorldConfig, vehicle_config
+    from sim_world.faults import world_faults
 
     _number("--robots", args.robots, 1, MAX_ROBOTS)
     check_fleet(args.robots)
