@@ -11,8 +11,9 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable
 
+from protocol.codec import encode
 from protocol.errors import UavRobotsError
-from protocol.messages import CameraRequest, encode
+from protocol.messages import CameraRequest
 from protocol.transport import IncomingQuery
 from scenarios.landmarks import LandmarkSet
 

@@ -19,12 +19,13 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
+from protocol.codec import decode, encode
 from protocol.errors import ProtocolError, UavRobotsError
 from protocol.keys import Keys, ids_of_ahead_key, ids_of_move_key, robot_id_from_key
 from protocol.log import Throttled
 from protocol.mapfile import format_rows
 from protocol.messages import (MissionEnd, MoveAhead, MoveBatch, MoveBatchResult, MoveRequest, MoveResult, MovesJudged,
-                               Record, RecordRequest, Tick, WorldInfo, WorldInfoRequest, decode, encode)
+                               Record, RecordRequest, Tick, WorldInfo, WorldInfoRequest)
 from protocol.process import Lifecycle
 from protocol.transport import IncomingQuery, Transport, open_session
 from scenarios.landmarks import LandmarkSet

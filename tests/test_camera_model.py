@@ -395,7 +395,8 @@ def test_the_readme_documents_every_camera_key_with_its_default():
 
 
 def test_a_realistic_world_serves_jpeg_frames_with_an_estimated_pose_and_its_landmarks():
-    from protocol.messages import CameraFrame, CameraRequest, WorldInfo, WorldInfoRequest, decode, encode
+    from protocol.codec import decode, encode
+    from protocol.messages import CameraFrame, CameraRequest, WorldInfo, WorldInfoRequest
     from protocol.transport import MemoryBus, MemoryTransport
     from sim_world.config import WorldConfig
     from sim_world.service import World

@@ -15,8 +15,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from protocol.codec import decode, encode
 from protocol.errors import MapError, MissionError, ProtocolError
-from protocol.messages import CameraFrame, decode, encode
+from protocol.messages import CameraFrame
 from sim_world.camera import (
     CameraModel,
     Scene,

@@ -5,8 +5,9 @@ import cv2
 import numpy as np
 import pytest
 
+from protocol.codec import decode, encode
 from protocol.errors import MapError
-from protocol.messages import WorldInfo, WorldInfoRequest, decode, encode
+from protocol.messages import WorldInfo, WorldInfoRequest
 from protocol.transport import MemoryBus, MemoryTransport
 from scenarios.landmarks import LANDMARK_IDS, place_landmarks
 from scenarios.maps import random_map, resolve_map

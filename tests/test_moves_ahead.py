@@ -8,8 +8,9 @@ from pathlib import Path
 
 import pytest
 
+from protocol.codec import decode, encode
 from protocol.keys import Keys, format_ids, new_fleet_name
-from protocol.messages import MoveAhead, MovesJudged, Plan, Record, RecordRequest, Tick, decode, encode
+from protocol.messages import MoveAhead, MovesJudged, Plan, Record, RecordRequest, Tick
 from protocol.transport import MemoryBus, MemoryTransport
 from scenes import open_map
 from sim_world.config import WorldConfig

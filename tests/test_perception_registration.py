@@ -14,7 +14,8 @@ import cv2
 import numpy as np
 import pytest
 
-from protocol.messages import CameraFrame, WorldInfo, decode, encode
+from protocol.codec import decode, encode
+from protocol.messages import CameraFrame, WorldInfo
 from scenarios.landmarks import place_landmarks
 from scenarios.maps import place, resolve_map
 from sim_world.camera import PRESETS, CameraModel, Scene, encode_frame, render

@@ -17,8 +17,9 @@ from pathlib import Path
 import psutil
 import pytest
 
+from protocol.codec import encode
 from protocol.keys import Keys
-from protocol.messages import Plan, RobotState, Tick, encode
+from protocol.messages import Plan, RobotState, Tick
 
 CLI = [sys.executable, "-m", "uav_robots"]
 # Slow enough ticks to act mid-execution; the ideal camera, as the subject is not perception.

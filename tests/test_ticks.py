@@ -9,8 +9,9 @@ from pathlib import Path
 
 import pytest
 
+from protocol.codec import encode
 from protocol.keys import Keys
-from protocol.messages import Plan, StateBatch, Tick, encode
+from protocol.messages import Plan, StateBatch, Tick
 from protocol.transport import MemoryBus, MemoryTransport
 from robot_agents.agent import run_robots
 from sim_world.config import WorldConfig

@@ -34,10 +34,11 @@ from pathlib import Path
 from typing import Any, Callable
 from urllib.parse import urlsplit
 
+from protocol.codec import decode, encode
 from protocol.errors import MissionError, ProtocolError, UavRobotsError
 from protocol.geo import geo_to_ned
 from protocol.keys import Keys
-from protocol.messages import CameraFrame, CameraRequest, WorldInfo, WorldInfoRequest, decode, encode
+from protocol.messages import CameraFrame, CameraRequest, WorldInfo, WorldInfoRequest
 from protocol.transport import PendingRequest, Transport
 
 KINDS = ("zenoh", "mavlink", "video")

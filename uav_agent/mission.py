@@ -20,11 +20,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from protocol.codec import decode, encode
 from protocol.errors import MissionError, PlanningError, ProtocolError
 from protocol.grid import Cell
 from protocol.keys import Keys
 from protocol.messages import (PROTOCOL_VERSION, CameraFrame, MissionEnd, MissionEvent, MissionStatus,
-                               Plan, Record, RecordRequest, Tick, WorldInfo, WorldInfoRequest, decode, encode)
+                               Plan, Record, RecordRequest, Tick, WorldInfo, WorldInfoRequest)
 from protocol.transport import Transport, open_session, zenoh_config
 
 from .camera_source import CameraSource, CameraSourceConfig, open_camera_source

@@ -396,7 +396,7 @@ def check_autopilot(args) -> None:
 
 def check_arguments(args) -> tuple[str, object]:
     """Every input of `run`, checked before any process starts: one line and exit 2 for the first bad one."""
-    from protocol.messages import MAX_ROBOTS
+    from protocol.bounds import MAX_ROBOTS
     from scenarios.limits import check_fleet, check_floor
     from scenarios.maps import place, resolve_map
     from sim_world.camera import CameraModel
