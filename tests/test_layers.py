@@ -1,6 +1,9 @@
-"""The floors hold (import-linter), and the repository names no path of any one machine."""
+"""The floors hold (import-linter), no modules import one another in a circle, and the repository
+names no path of any one machine."""
 from __future__ import annotations
 
+import functools
+import json
 import re
 import shutil
 import subprocess
@@ -43,6 +46,50 @@ def test_a_backward_import_breaks_the_contract(tmp_path, file, line, broken):
     assert run.returncode == 1, run.stdout[-3000:] + run.stderr[-2000:]
     assert re.search(re.escape(broken) + r".*BROKEN", run.stdout.replace("\n", " ")), run.stdout[-3000:]
 
+
+
+def _circles(root: Path, packages: tuple[str, ...]) -> list[list[str]]:
+    """The import circles among the modules of `packages` under `root`: each a strongly connected
+    set (every module of it reaches every other), found by grimp, whose graph import-linter builds."""
+    code = ("import json, sys, grimp\n"
+            "g = grimp.build_graph(*sys.argv[1:], cache_dir=None)\n"
+            "found = set()\n"
+            "for m in g.modules:\n"
+            "    both = g.find_downstream_modules(m) & g.find_upstream_modules(m)\n"
+            "    if both:\n"
+            "        found.add(tuple(sorted(both | {m})))\n"
+            "print(json.dumps(sorted(found)))\n")
+    run = subprocess.run([sys.executable, "-c", code, *packages], cwd=root,
+                         env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin"}, capture_output=True, text=True,
+                         timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    return json.loads(run.stdout)
+
+
+@functools.lru_cache(maxsize=1)
+def _circles_of_the_house() -> tuple[tuple[str, ...], ...]:
+    return tuple(tuple(c) for c in _circles(REPO, PACKAGES))
+
+
+# Circles others are taking apart right now (issue 31); each package's test passes once its branch lands.
+RENOVATING = {"uav_agent": "planning's modules import one another: being renovated (issue 31)",
+              "uav_robots": "launcher <-> secure_cli: being renovated (issue 31)"}
+
+
+@pytest.mark.parametrize("package", [
+    pytest.param(p, marks=pytest.mark.xfail(strict=False, reason=RENOVATING[p])) if p in RENOVATING else p
+    for p in PACKAGES])
+def test_no_import_circle(package):
+    mine = [c for c in _circles_of_the_house() if any(m.split(".")[0] == package for m in c)]
+    assert not mine, "modules that import one another: " + "; ".join(" <-> ".join(c) for c in mine)
+
+
+def test_a_planted_circle_is_found(tmp_path):
+    shutil.copytree(REPO / "sim_world", tmp_path / "sim_world", ignore=shutil.ignore_patterns("__pycache__"))
+    assert _circles(tmp_path, ("sim_world",)) == []
+    desk = tmp_path / "sim_world" / "desk.py"
+    desk.write_text(desk.read_text() + "\nfrom .ahead import AheadDesk\n")
+    assert _circles(tmp_path, ("sim_world",)) == [["sim_world.ahead", "sim_world.desk"]]
 
 # A path that starts at the root of one machine's file system: its home, a workspace, a mount.
 MACHINE_PATH = re.compile(r"(?<![\w.~-])/(work|root|home|Users|mnt|srv|opt)/[\w.-]")
