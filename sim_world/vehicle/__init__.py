@@ -13,7 +13,8 @@ timeout) runs on wall time, since that is what the ground station's own timeouts
 
 The parts, each owning its state under the vehicle's one lock:
 - `dynamics`: the airframe (position, velocity, yaw), its physics step, the land detector;
-- `autopilot`: arming, flight modes, targets, auto-disarm; it flies the airframe;
+- `autopilot`: arming, flight modes, auto-disarm; it flies the airframe (`guidance`: the target of
+  each mode; `safety`: the failsafes and preflight checks);
 - `offboard`: the offboard setpoint stream; `params`: parameters and their protocol;
 - `telemetry`: message builders and streams; `commands`: message and MAV_CMD dispatch tables;
 - `link`: the MAVLink connection; `journal`: events and warnings; `vehicle`: the facade.
