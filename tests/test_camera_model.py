@@ -19,7 +19,8 @@ from scenarios.landmarks import place_landmarks
 from scenarios.maps import place, resolve_map
 from sim_world.camera import (DEFAULT_CAMERA_PRESET, KEYS, PRESETS, CameraModel, PoseEstimator, Scene, VehicleView,
                               camera_model_from, camera_options, capture_frame, floor_homography, render)
-from sim_world.vehicle.dynamics import MAX_TILT_DEG, Contact, Dynamics, Setpoint
+from sim_world.vehicle.dynamics import MAX_TILT_DEG, Contact, Dynamics
+from sim_world.vehicle.motion import Setpoint
 from sim_world.vehicle.journal import Journal
 
 CELL = 1.0

@@ -28,13 +28,14 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from .battery import Battery, Charge
 from .datalink import Datalink
-from .dynamics import Contact, Dynamics, Setpoint, Vec3
+from .dynamics import Contact, Dynamics
 from .estimator import Estimator
 from .geofence import Geofence
 from .guidance import TAKEOFF_DONE_M, Guidance
 from .journal import CRITICAL, INFO, Journal
 from .mission import Mission
 from .modes import LandedState, Mode
+from .motion import Setpoint, Vec3
 from .offboard import Offboard
 from .params import Params
 from .payload import Payload

@@ -9,10 +9,11 @@ import math
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from .dynamics import Dynamics, Vec3
+from .dynamics import Dynamics
 from .geofence import Geofence
 from .journal import WARNING, Journal
 from .mission import Item, Leg, Mission
+from .motion import Vec3
 from .offboard import Offboard
 from .params import Params
 from .payload import Payload
