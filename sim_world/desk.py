@@ -176,6 +176,7 @@ class MoveDesk:
 
 
 def send_all(sends: list[tuple[Reply, MoveResult]]) -> None:
+    """The desk's answers, sent once its lock is released: a reply may take the transport's time."""
     for reply, res in sends:
         try:
             reply(res)
