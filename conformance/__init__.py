@@ -20,11 +20,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+from protocol.codec import decode, encode
 from protocol.config import hub_config
 from protocol.errors import MissionError, ProtocolError, UavRobotsError
 from protocol.keys import Keys, ids_of_states_key, new_fleet_name, robot_id_from_key
 from protocol.messages import (Done, MissionEnd, MoveAhead, MoveBatch, MoveBatchResult, MoveRequest, MoveResult,
-                               MovesJudged, Plan, PlanAck, RobotState, StateBatch, Tick, decode, encode)
+                               MovesJudged, Plan, PlanAck, RobotState, StateBatch, Tick)
 from protocol.transport import Handle, IncomingQuery, Transport, ZenohTransport
 
 REPO = Path(__file__).resolve().parents[1]

@@ -19,9 +19,11 @@ import sys
 import time
 from typing import Callable
 
+from protocol.bounds import MAX_GRID_SIDE
+from protocol.codec import decode, encode
 from protocol.errors import ProtocolError
-from protocol.messages import (MAX_GRID_SIDE, PROTOCOL_VERSION, Done, MoveAhead, MoveResult, Plan, PlanAck,
-                               RobotState, Tick, decode, encode, wire_fields)
+from protocol.messages import (PROTOCOL_VERSION, Done, MoveAhead, MoveResult, Plan, PlanAck, RobotState, Tick,
+                               wire_fields)
 
 Patch = Callable[[], None]
 

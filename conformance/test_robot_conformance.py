@@ -14,8 +14,9 @@ import time
 import pytest
 
 from conformance import FakeUav, Hub, Wire, free_endpoint, signal_group, start_robot, stop_process
+from protocol.codec import decode, encode
 from protocol.keys import new_fleet_name
-from protocol.messages import (MESSAGE_TYPES, MissionEnd, MovesJudged, Plan, Tick, decode, encode)
+from protocol.messages import MESSAGE_TYPES, MissionEnd, MovesJudged, Plan, Tick
 
 EXIT_S = 5.0
 QUIET_S = 0.5  # how long "nothing more arrives" is watched for

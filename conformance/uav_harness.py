@@ -27,13 +27,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+from protocol.codec import decode, encode
 from protocol.config import client_config
 from protocol.errors import MissionError, ProtocolError
 from protocol.grid import Cell, on_grid
 from protocol.keys import Keys, robot_id_from_key
 from protocol.messages import (PROTOCOL_VERSION, CameraFrame, Done, Message, MissionEnd, MissionEvent, MissionStatus,
                                MoveBatch, MoveBatchResult, Plan, PlanAck, Record, RobotState, StateBatch, Tick,
-                               VehiclePose, decode, encode)
+                               VehiclePose)
 from protocol.transport import Handle, IncomingQuery, ZenohTransport
 
 from . import REPO, Hub, Waiter, stop_process
@@ -154,7 +155,8 @@ class Site:
     """Our world in this process: the floor's truth, the move service, the camera and the MAVLink vehicle."""
 
     def __init__(self, hub: Hub, opts: UavOptions) -> None:
-        from sim_world.world import World, WorldConfig
+        from sim_world.config import WorldConfig
+        from sim_world.service import World
 
         self.mavlink_port = free_udp_port()
         self.gcs_port = free_udp_port()   # the operator's link (the flight link answers the UAV only)

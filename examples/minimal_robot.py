@@ -34,10 +34,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # the checkout, even without `pip install -e .`
 
+from protocol.codec import decode, encode
 from protocol.errors import UavRobotsError
 from protocol.keys import Keys, new_fleet_name
-from protocol.messages import (PROTOCOL_VERSION, Done, MissionEnd, MoveRequest, MoveResult, Plan, PlanAck,
-                               RobotState, Tick, decode, encode)
+from protocol.messages import (PROTOCOL_VERSION, Done, MissionEnd, MoveRequest, MoveResult, Plan, PlanAck, RobotState,
+                               Tick)
 from protocol.process import die_with_parent
 from protocol.transport import open_session
 

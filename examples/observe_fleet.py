@@ -5,7 +5,7 @@
 
 An observer is one more Zenoh client of the UAV's router: it subscribes to keys under the fleet's
 prefix `uavr/<fleet>` (protocol/keys.py, docs/protocol.md *Keys*) and decodes what it hears with
-protocol/messages.py. It needs no hook in the processes it watches. `uav-robots run` prints its
+protocol/codec.py (the messages: protocol/messages.py). It needs no hook in the processes it watches. `uav-robots run` prints its
 fleet and Zenoh endpoint on its first line (`... fleet f1a2b3c4d, zenoh tcp/127.0.0.1:PORT, ...`):
 that is all an observer needs to join it.
 """
@@ -23,9 +23,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # the checkout, even without `pip install -e .`
 
+from protocol.codec import decode
 from protocol.errors import UavRobotsError
 from protocol.keys import Keys
-from protocol.messages import Done, MissionEnd, MissionStatus, RobotState, StateBatch, Tick, decode
+from protocol.messages import Done, MissionEnd, MissionStatus, RobotState, StateBatch, Tick
 from protocol.process import die_with_parent
 from protocol.transport import open_session
 

@@ -7,8 +7,9 @@ from typing import TYPE_CHECKING, Any
 from .errors import MapError, MissionError, PlanningError, ProtocolError, UavRobotsError
 
 if TYPE_CHECKING:
+    from .codec import decode, encode
     from .keys import Keys, new_fleet_name
-    from .messages import PROTOCOL_VERSION, SCHEMA_VERSION, decode, encode
+    from .messages import PROTOCOL_VERSION, SCHEMA_VERSION
 
 __all__ = ["Keys", "MapError", "MissionError", "PROTOCOL_VERSION", "PlanningError", "ProtocolError",
            "SCHEMA_VERSION", "UavRobotsError", "decode", "encode", "new_fleet_name"]
@@ -16,7 +17,7 @@ __all__ = ["Keys", "MapError", "MissionError", "PROTOCOL_VERSION", "PlanningErro
 # Imported on first use: every command imports this package (its errors, the process life cycle),
 # and `uav-robots plan` needs neither the key expressions nor the message classes.
 _LAZY = {"Keys": "keys", "new_fleet_name": "keys", "PROTOCOL_VERSION": "messages", "SCHEMA_VERSION": "messages",
-         "decode": "messages", "encode": "messages"}
+         "decode": "codec", "encode": "codec"}
 
 
 def __getattr__(name: str) -> Any:

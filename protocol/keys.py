@@ -6,8 +6,8 @@ import secrets
 from dataclasses import dataclass
 from typing import Sequence
 
+from .bounds import MAX_ROBOT_ID, MAX_ROBOTS
 from .errors import UavRobotsError
-from .messages import MAX_ROBOT_ID, MAX_ROBOTS
 
 ROOT = "uavr"
 ROBOT_ID_DIGITS = len(str(MAX_ROBOT_ID))

@@ -17,8 +17,9 @@ import typing
 from pathlib import Path
 from typing import Any, Literal, get_args, get_origin
 
-from .messages import (MAX_DEPTH, MESSAGE_TYPES, SCHEMA_VERSION, Cell, MaxLen, Message, Pattern, Range, bound,
-                       json_limit, unwrap, wire_fields)
+from .bounds import MAX_DEPTH, Cell, MaxLen, Pattern, Range, bound, unwrap
+from .codec import json_limit
+from .messages import MESSAGE_TYPES, SCHEMA_VERSION, Message, wire_fields
 
 DRAFT = "https://json-schema.org/draft/2020-12/schema"
 SCHEMA_DIR = Path(__file__).with_name("schemas")

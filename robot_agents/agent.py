@@ -24,13 +24,14 @@ import sys
 import threading
 from typing import Any, Callable, Sequence
 
+from protocol.codec import decode, encode
 from protocol.config import add_session_arguments
 from protocol.errors import ProtocolError, UavRobotsError
 from protocol.faults import ROBOTS, Fault, parse_fault, usage
 from protocol.keys import DEFAULT_FLEET, Keys, format_ids, parse_ids, robot_id_from_key  # noqa: F401 - re-exported
 from protocol.log import Throttled
 from protocol.messages import (Done, MissionEnd, MoveAhead, MoveBatch, MoveBatchResult, MoveRequest, MoveResult,
-                               MovesJudged, Plan, RobotState, StateBatch, Tick, decode, encode)
+                               MovesJudged, Plan, RobotState, StateBatch, Tick)
 from protocol.process import Lifecycle, command_main, one_command
 from protocol.run_spec import add_spec_argument, apply_spec
 from protocol.transport import Transport, lean_runtime, open_session

@@ -3,7 +3,7 @@ import sys
 
 from protocol.process import command_main, one_command
 
-from .world import add_world_arguments, world_command
+from .cli import add_world_arguments, world_command
 
 sys.exit(command_main(one_command("python -m sim_world", "The simulated world: floor, robots' physics, vehicle, camera.",
                                   add_world_arguments, world_command)))

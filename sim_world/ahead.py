@@ -15,7 +15,7 @@ from typing import Callable
 
 from protocol.messages import MoveAhead, MoveResult, MovesJudged, Tick
 
-from .world import MAX_TICKS_AHEAD, Ask, MoveDesk
+from .desk import MAX_TICKS_AHEAD, Ask, MoveDesk
 
 Send = Callable[[str, MovesJudged], None]   # (the sender's ids label, the answer)
 

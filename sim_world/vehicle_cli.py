@@ -20,6 +20,7 @@ import time
 from typing import Any
 
 from protocol.errors import MissionError, UavRobotsError
+from protocol.run_spec import add_spec_argument, apply_spec
 
 DEFAULT_URL = "udpout:127.0.0.1:14540"
 LOG_EVERY_S = 0.2
@@ -115,6 +116,22 @@ def add_vehicle_arguments(p: argparse.ArgumentParser) -> None:
                         "ArduPilot SITL accepts GUIDED and arming only about 38 s after it starts)")
     p.add_argument("--companion", type=int, default=None, metavar="SYSID",
                    help="the only MAVLink system the flight link answers (default: the first that talks to it)")
+    add_spec_argument(p)
+
+
+# What the vehicle takes from a run's spec (`--spec OUT/run.json`); its hover wobble is the camera's
+# (a preset's `wobble_deg`: the body the camera is fixed to wobbles).
+SPEC_FIELDS = {
+    "--time-scale": lambda s: s.vehicle.time_scale, "--seed": lambda s: s.seed, "--preset": lambda s: s.vehicle.preset,
+    "--gcs": lambda s: s.vehicle.gcs, "--mavlink-key": lambda s: s.vehicle.mavlink_key,
+    "--mavlink-bind": lambda s: s.vehicle.mavlink_bind, "--wobble": lambda s: camera_wobble_deg(s.camera.model),
+}
+
+
+def camera_wobble_deg(camera: str) -> float:
+    from .camera.model import CameraModel, camera_options
+
+    return CameraModel(**camera_options(camera)).wobble_deg
 
 
 def vehicle_config_from_args(args: argparse.Namespace) -> Any:
@@ -147,6 +164,7 @@ def vehicle_command(args: argparse.Namespace) -> int:
 
     from .vehicle import Vehicle
 
+    apply_spec(args, SPEC_FIELDS)
     cfg = vehicle_config_from_args(args)
     params = parse_params(args.param)
     vehicle = Vehicle(cfg)

@@ -8,7 +8,8 @@ from typing import Any, Literal, get_args, get_origin
 
 from hypothesis import strategies as st
 
-from protocol.messages import MESSAGE_TYPES, MaxLen, Message, Pattern, Range, bound, unwrap, wire_fields
+from protocol.bounds import MaxLen, Pattern, Range, bound, unwrap
+from protocol.messages import MESSAGE_TYPES, Message, wire_fields
 
 MAX_EXAMPLE_ITEMS = 12
 

@@ -19,7 +19,8 @@ from scenarios.landmarks import place_landmarks
 from scenarios.maps import place, resolve_map
 from sim_world.camera import (DEFAULT_CAMERA_PRESET, KEYS, PRESETS, CameraModel, PoseEstimator, Scene, VehicleView,
                               camera_model_from, camera_options, capture_frame, floor_homography, render)
-from sim_world.vehicle.dynamics import MAX_TILT_DEG, Contact, Dynamics, Setpoint
+from sim_world.vehicle.dynamics import MAX_TILT_DEG, Contact, Dynamics
+from sim_world.vehicle.motion import Setpoint
 from sim_world.vehicle.journal import Journal
 
 CELL = 1.0
@@ -395,9 +396,11 @@ def test_the_readme_documents_every_camera_key_with_its_default():
 
 
 def test_a_realistic_world_serves_jpeg_frames_with_an_estimated_pose_and_its_landmarks():
-    from protocol.messages import CameraFrame, CameraRequest, WorldInfo, WorldInfoRequest, decode, encode
+    from protocol.codec import decode, encode
+    from protocol.messages import CameraFrame, CameraRequest, WorldInfo, WorldInfoRequest
     from protocol.transport import MemoryBus, MemoryTransport
-    from sim_world.world import World, WorldConfig
+    from sim_world.config import WorldConfig
+    from sim_world.service import World
 
     bus = MemoryBus()
     camera = {**camera_options("realistic"), "width": 1200, "height": 900}

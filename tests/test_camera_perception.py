@@ -15,8 +15,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from protocol.codec import decode, encode
 from protocol.errors import MapError, MissionError, ProtocolError
-from protocol.messages import CameraFrame, decode, encode
+from protocol.messages import CameraFrame
 from sim_world.camera import (
     CameraModel,
     Scene,
@@ -418,7 +419,7 @@ def test_a_frame_with_cells_far_over_the_needed_resolution_is_read_smaller_and_t
     """A 12 MP camera over a small floor sees each cell across ~150 px: perception reads it
     scaled down (JPEG decodes straight to that size) and finds the same floor, robots and goals."""
     from sim_world.camera import PRESETS, CameraModel, PoseEstimator, VehicleView, capture_frame
-    from sim_world.world import DRONE_CAMERA
+    from sim_world.config import DRONE_CAMERA
     from uav_agent.perception import Fusion, frames
     from uav_agent.survey import survey_poses
     from uav_robots.bench.perception import bench_scene, landmarks_of, score
@@ -443,7 +444,7 @@ def test_a_tilt_within_its_margin_keeps_the_level_footprint_in_view():
     """Whatever way the camera leans by up to `tilt`, the floor a level camera shows inside the
     tilt margin stays in the image; the centre's fx * tan(tilt), which the survey used to count,
     does not hold it at a 45-degree edge (a wall robot went unseen)."""
-    from sim_world.world import DRONE_CAMERA
+    from sim_world.config import DRONE_CAMERA
     from uav_agent.survey import tilt_margin_px
 
     model = camera_model_from("ideal", DRONE_CAMERA)
@@ -473,7 +474,7 @@ def test_the_survey_border_counts_the_lens_the_tilt_and_the_hold_and_the_450_flo
     """The border is what the lens leaves empty, the tilt the shutter accepts and the hover
     tolerance: the realistic camera's mild barrel lens leaves nothing empty, a pincushion lens
     its corners."""
-    from sim_world.world import DRONE_CAMERA
+    from sim_world.config import DRONE_CAMERA
     from uav_agent.mission.looks import LEVEL_TILT_DEG, border
     from uav_agent.perception.frames import lens_margin_px
     from uav_agent.survey import tilt_margin_px

@@ -2,8 +2,9 @@
 
 import pytest
 
+from protocol.codec import encode
 from protocol.keys import Keys
-from protocol.messages import Done, PlanAck, RobotState, encode
+from protocol.messages import Done, PlanAck, RobotState
 from protocol.transport import MemoryBus, MemoryTransport
 from uav_agent.fleet import FleetLink
 

@@ -9,7 +9,8 @@ import pytest
 
 from protocol.errors import MissionError
 from sim_world.vehicle import LandedState, Vehicle, VehicleConfig
-from protocol.messages import VehiclePose, decode, encode
+from protocol.codec import decode, encode
+from protocol.messages import VehiclePose
 from uav_agent.flight import Flight
 from uav_agent.pose_feed import PoseFeed, read_pose
 

@@ -413,7 +413,8 @@ def test_run_with_a_signed_ground_station_completes_while_it_watches(tmp_path):
 
 def test_the_world_widens_the_geofence_to_cover_a_large_floor():
     from protocol.transport import MemoryBus, MemoryTransport
-    from sim_world.world import World, WorldConfig
+    from sim_world.config import WorldConfig
+    from sim_world.service import World
 
     small = World(WorldConfig(fleet="t", robots=2, mavlink="udpin:127.0.0.1:0"), MemoryTransport(MemoryBus()))
     big = World(WorldConfig(fleet="t", robots=2, mavlink="udpin:127.0.0.1:0", cell_size_m=100.0),

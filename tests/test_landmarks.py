@@ -5,13 +5,15 @@ import cv2
 import numpy as np
 import pytest
 
+from protocol.codec import decode, encode
 from protocol.errors import MapError
-from protocol.messages import WorldInfo, WorldInfoRequest, decode, encode
+from protocol.messages import WorldInfo, WorldInfoRequest
 from protocol.transport import MemoryBus, MemoryTransport
 from scenarios.landmarks import LANDMARK_IDS, place_landmarks
 from scenarios.maps import random_map, resolve_map
 from sim_world.camera import CameraModel, Scene, floor_homography, render
-from sim_world.world import DRONE_CAMERA, World, WorldConfig
+from sim_world.config import DRONE_CAMERA, WorldConfig
+from sim_world.service import World
 from uav_agent.survey import survey_poses
 
 CELL = 1.0

@@ -1,6 +1,9 @@
-"""The floors hold (import-linter), and the repository names no path of any one machine."""
+"""The floors hold (import-linter), no modules import one another in a circle, and the repository
+names no path of any one machine."""
 from __future__ import annotations
 
+import functools
+import json
 import re
 import shutil
 import subprocess
@@ -28,7 +31,7 @@ def test_the_floors_hold():
 
 
 @pytest.mark.parametrize("file, line, broken", [
-    ("protocol/keys.py", "import sim_world.world", "floors"),
+    ("protocol/keys.py", "import sim_world.service", "floors"),
     ("sim_world/moves.py", "from uav_agent import fleet", "floors"),
     ("robot_agents/robot.py", "import scenarios.maps", "a robot process imports nothing but the protocol"),
     ("uav_agent/fleet.py", "import uav_robots.run.launcher", "floors"),
@@ -52,29 +55,42 @@ def test_a_backward_import_breaks_the_contract(tmp_path, file, line, broken):
     assert re.search(re.escape(broken) + r".*BROKEN", run.stdout.replace("\n", " ")), run.stdout[-3000:]
 
 
-def _circles(package: str) -> list[tuple[str, str]]:
-    """Each direct import a -> b whose b leads back to a: one edge of an import circle."""
-    import grimp
 
-    graph = grimp.build_graph(package, cache_dir=None)
-    return sorted((a, b) for a in graph.modules for b in graph.find_modules_directly_imported_by(a)
-                  if graph.chain_exists(importer=b, imported=a))
+def _circles(root: Path, packages: tuple[str, ...]) -> list[list[str]]:
+    """The import circles among the modules of `packages` under `root`: each a strongly connected
+    set (every module of it reaches every other), found by grimp, whose graph import-linter builds."""
+    code = ("import json, sys, grimp\n"
+            "g = grimp.build_graph(*sys.argv[1:], cache_dir=None)\n"
+            "found = set()\n"
+            "for m in g.modules:\n"
+            "    both = g.find_downstream_modules(m) & g.find_upstream_modules(m)\n"
+            "    if both:\n"
+            "        found.add(tuple(sorted(both | {m})))\n"
+            "print(json.dumps(sorted(found)))\n")
+    run = subprocess.run([sys.executable, "-c", code, *packages], cwd=root,
+                         env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin"}, capture_output=True, text=True,
+                         timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    return json.loads(run.stdout)
 
 
-def test_the_command_has_no_import_circle():
-    assert _circles("uav_robots") == []
+@functools.lru_cache(maxsize=1)
+def _circles_of_the_house() -> tuple[tuple[str, ...], ...]:
+    return tuple(tuple(c) for c in _circles(REPO, PACKAGES))
 
 
-def test_an_import_circle_is_found(tmp_path, monkeypatch):
-    pkg = tmp_path / "circled"
-    pkg.mkdir()
-    (pkg / "__init__.py").write_text("")
-    (pkg / "a.py").write_text("from . import b\n")
-    (pkg / "b.py").write_text("def f():\n    from . import a\n")
-    (pkg / "c.py").write_text("from . import a\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
-    assert _circles("circled") == [("circled.a", "circled.b"), ("circled.b", "circled.a")]
+@pytest.mark.parametrize("package", PACKAGES)
+def test_no_import_circle(package):
+    mine = [c for c in _circles_of_the_house() if any(m.split(".")[0] == package for m in c)]
+    assert not mine, "modules that import one another: " + "; ".join(" <-> ".join(c) for c in mine)
 
+
+def test_a_planted_circle_is_found(tmp_path):
+    shutil.copytree(REPO / "sim_world", tmp_path / "sim_world", ignore=shutil.ignore_patterns("__pycache__"))
+    assert _circles(tmp_path, ("sim_world",)) == []
+    desk = tmp_path / "sim_world" / "desk.py"
+    desk.write_text(desk.read_text() + "\nfrom .ahead import AheadDesk\n")
+    assert _circles(tmp_path, ("sim_world",)) == [["sim_world.ahead", "sim_world.desk"]]
 
 # A path that starts at the root of one machine's file system: its home, a workspace, a mount.
 MACHINE_PATH = re.compile(r"(?<![\w.~-])/(work|root|home|Users|mnt|srv|opt)/[\w.-]")

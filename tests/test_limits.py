@@ -15,10 +15,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from protocol.bounds import MARGIN_BYTES, MAX_MESSAGE_BYTES, MaxLen, Pattern, Range, bound, unwrap
+from protocol.codec import decode, encode, json_limit
 from protocol.errors import MapError, ProtocolError, UavRobotsError
 from protocol.mapfile import MAX_HEADER_BYTES, read_map, read_scen
-from protocol.messages import (MARGIN_BYTES, MAX_MESSAGE_BYTES, MESSAGE_TYPES, MaxLen, Pattern, Plan, Range, RobotState,
-                               bound, decode, encode, json_limit, unwrap, wire_fields)
+from protocol.messages import MESSAGE_TYPES, Plan, RobotState, wire_fields
 from scenarios.limits import MAX_FLEET, MAX_FLOOR_CELLS, check_floor
 from scenarios.maps import NAMED, resolve_map
 from uav_robots.secure.fleet import MANIFEST, new_fleet, read_fleet_dir
@@ -456,8 +457,9 @@ def test_a_batch_is_bounded_by_the_robots_its_receiver_asked_about():
     """The issue's own example: a MoveBatchResult carrying a million-pair unknown field (8 MB) fits the
     type's 8 MiB cap, but the answer to one robot's (or eight robots') query may take only what that
     many entries can: it is refused on its length, before any parsing."""
+    from protocol.codec import batch_limit, decode, encode, json_limit
     from protocol.errors import ProtocolError
-    from protocol.messages import MoveBatchResult, StateBatch, batch_limit, decode, encode, json_limit
+    from protocol.messages import MoveBatchResult, StateBatch
 
     junk = encode(MoveBatchResult(tick=1, results=[(7, True, (1, 1), "")]))[:-1] + b',"path":' + \
         b"[" + b",".join(b"[1,2]" for _ in range(1_000_000)) + b"]}"

@@ -23,7 +23,8 @@ from protocol.messages import WorldInfo
 from protocol.transport import MemoryBus, MemoryTransport
 from scenes import open_map
 from sim_world.camera.mavlink_camera import camera_quaternion
-from sim_world.world import World, WorldConfig
+from sim_world.config import WorldConfig
+from sim_world.service import World
 from uav_agent.camera_source import open_camera_source
 from uav_agent.camera_source.base import CameraSourceConfig, body_attitude
 from uav_agent.camera_source.mavlink_source import MavlinkSource

@@ -8,11 +8,13 @@ from pathlib import Path
 
 import pytest
 
+from protocol.codec import decode, encode
 from protocol.keys import Keys, format_ids, new_fleet_name
-from protocol.messages import MoveAhead, MovesJudged, Plan, Record, RecordRequest, Tick, decode, encode
+from protocol.messages import MoveAhead, MovesJudged, Plan, Record, RecordRequest, Tick
 from protocol.transport import MemoryBus, MemoryTransport
 from scenes import open_map
-from sim_world.world import World, WorldConfig
+from sim_world.config import WorldConfig
+from sim_world.service import World
 from uav_agent.fleet import FleetLink
 from uav_robots.bench.lockstep import Children, lanes, local_endpoint, open_hub, write_scen
 

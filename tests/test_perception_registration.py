@@ -14,7 +14,8 @@ import cv2
 import numpy as np
 import pytest
 
-from protocol.messages import CameraFrame, WorldInfo, decode, encode
+from protocol.codec import decode, encode
+from protocol.messages import CameraFrame, WorldInfo
 from scenarios.landmarks import place_landmarks
 from scenarios.maps import place, resolve_map
 from sim_world.camera import PRESETS, CameraModel, Scene, encode_frame, render
@@ -259,7 +260,7 @@ def test_the_450_surveys_pad_layout_robots_read_by_the_detector_are_kept():
     """The realistic camera's robots are the pad layout's smaller markers: the full-cell module
     grid laid over one reads half off and once vetoed true detections (these two frames)."""
     from sim_world.camera import PoseEstimator, VehicleView, capture_frame
-    from sim_world.world import DRONE_CAMERA
+    from sim_world.config import DRONE_CAMERA
     from uav_agent.mission.looks import border
     from uav_agent.perception.markers import read_markers
     from uav_agent.perception.occupancy import cells_in
@@ -336,7 +337,7 @@ def test_an_arrival_image_of_a_region_shows_its_goals_and_enough_landmarks_and_r
     from dataclasses import replace
 
     from sim_world.camera import PoseEstimator, Roi, VehicleView, camera_frame, capture_frame
-    from sim_world.world import DRONE_CAMERA
+    from sim_world.config import DRONE_CAMERA
     from uav_agent.mission.looks import LEVEL_TILT_DEG, border
     from uav_agent.perception.fusion import Fusion
     from uav_agent.region import MIN_LANDMARKS, region_for
@@ -391,7 +392,7 @@ def test_robots_parked_on_their_goals_are_read_through_the_target_degradation():
     # 450 floor is surveyed from 47.6 m; read only by the detector, 3 of these 10 parked robots
     # went unseen (26 of all 50), and the mission counted their arrivals as contradicted.
     from sim_world.camera import PoseEstimator, VehicleView, capture_frame
-    from sim_world.world import DRONE_CAMERA
+    from sim_world.config import DRONE_CAMERA
     from uav_agent.mission.looks import border
     from uav_agent.survey import covering
 

@@ -11,12 +11,12 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from protocol import messages as m
+from protocol import bounds as m
+from protocol.codec import decode, encode
 from protocol.config import client_config, hub_config
 from protocol.errors import MissionError, ProtocolError
 from protocol.keys import Keys, robot_id_from_key
-from protocol.messages import (MESSAGE_TYPES, CameraFrame, MissionEnd, Plan, Record, RobotState, Tick, WorldInfo,
-                               decode, encode)
+from protocol.messages import MESSAGE_TYPES, CameraFrame, MissionEnd, Plan, Record, RobotState, Tick, WorldInfo
 from protocol.schemas import SCHEMA_DIR, schema_files, stale_files
 from protocol.transport import MemoryBus, MemoryTransport, ZenohTransport
 

@@ -8,8 +8,9 @@ from pathlib import Path
 import zenoh
 
 from protocol import messages
+from protocol.codec import decode
 from protocol.config import DEFAULT_ENDPOINT, client_config, hub_config
-from protocol.messages import Message, decode
+from protocol.messages import Message
 
 DOC = (Path(__file__).resolve().parents[1] / "docs" / "protocol.md").read_text()
 

@@ -14,9 +14,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from message_strategies import TYPES, messages
+from protocol.codec import decode, encode
 from protocol.errors import MapError, PlanningError, ProtocolError
 from protocol.mapfile import parse_map_text, read_scen
-from protocol.messages import decode, encode
 from protocol.schemas import message_schema
 from uav_agent.planning.plan_io import plan_from_dict, read_plan
 

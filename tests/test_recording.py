@@ -3,8 +3,9 @@ from __future__ import annotations
 
 import time
 
+from protocol.codec import encode
 from protocol.keys import Keys
-from protocol.messages import MissionStatus, Plan, RobotState, StateBatch, Tick, encode
+from protocol.messages import MissionStatus, Plan, RobotState, StateBatch, Tick
 from uav_robots.record.observer import Sample
 from uav_robots.record.recording import drawn_recording, read_mcap, write_mcap
 

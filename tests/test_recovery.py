@@ -18,9 +18,10 @@ from pathlib import Path
 import psutil
 import pytest
 
+from protocol.codec import encode
 from protocol.config import client_config
 from protocol.keys import Keys
-from protocol.messages import Done, encode
+from protocol.messages import Done
 from protocol.transport import ZenohTransport
 from uav_agent.report import load_report
 
@@ -383,7 +384,8 @@ def test_a_frozen_robot_whose_states_are_forged_is_caught_by_the_camera(tmp_path
     plans: dict[str, object] = {}
 
     def forge(t: ZenohTransport) -> None:
-        from protocol.messages import Plan, RobotState, Tick, decode
+        from protocol.codec import decode
+        from protocol.messages import Plan, RobotState, Tick
 
         def on_plan(_key, payload):
             p = decode(payload, Plan)

@@ -15,7 +15,8 @@ from protocol.messages import MoveResult, Plan, Tick
 from protocol.transport import MemoryBus, MemoryTransport
 from robot_agents.agent import format_ids, parse_ids, run_robots
 from robot_agents.robot import RobotMachine
-from sim_world.world import World, WorldConfig
+from sim_world.config import WorldConfig
+from sim_world.service import World
 from scenes import open_map, robot_process
 
 REPO = Path(__file__).resolve().parents[1]

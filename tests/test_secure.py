@@ -14,10 +14,11 @@ from pathlib import Path
 
 import pytest
 
+from protocol.codec import decode, encode
 from protocol.errors import MissionError
 from protocol.keys import Keys
 from protocol.messages import (Done, MissionEnd, MoveRequest, MoveResult, Plan, RobotState, Tick, WorldInfo,
-                               WorldInfoRequest, decode, encode)
+                               WorldInfoRequest)
 from protocol.transport import ZenohTransport, open_session
 from test_world_service import mem_world  # noqa: F401 - the fixture: a world on an in-memory bus
 from uav_robots.secure.fleet import make_fleet_dir, new_fleet, read_fleet_dir

@@ -12,8 +12,9 @@ import time
 
 import pytest
 
+from protocol.codec import decode, encode
 from protocol.errors import MissionError
-from protocol.messages import CameraFrame, CameraRequest, decode, encode
+from protocol.messages import CameraFrame, CameraRequest
 from protocol.transport import MemoryBus, MemoryTransport
 from uav_agent.shots import Shots, miss
 

@@ -17,8 +17,9 @@ from pathlib import Path
 import psutil
 import pytest
 
+from protocol.codec import encode
 from protocol.keys import Keys
-from protocol.messages import Plan, RobotState, Tick, encode
+from protocol.messages import Plan, RobotState, Tick
 
 CLI = [sys.executable, "-m", "uav_robots"]
 # Slow enough ticks to act mid-execution; the ideal camera, as the subject is not perception.
@@ -254,7 +255,8 @@ def test_report_json_is_written_whole_or_not_at_all(tmp_path):
 
 def test_a_touchdown_faster_than_3_m_s_is_a_crash_in_the_vehicles_record():
     """The vehicle's own record says it hit the ground, with the speed, whether it fell or was flown down."""
-    from sim_world.vehicle.dynamics import Dynamics, Setpoint
+    from sim_world.vehicle.dynamics import Dynamics
+    from sim_world.vehicle.motion import Setpoint
     from sim_world.vehicle.journal import Journal
 
     class Pilot:

@@ -9,11 +9,13 @@ from pathlib import Path
 
 import pytest
 
+from protocol.codec import encode
 from protocol.keys import Keys
-from protocol.messages import Plan, StateBatch, Tick, encode
+from protocol.messages import Plan, StateBatch, Tick
 from protocol.transport import MemoryBus, MemoryTransport
 from robot_agents.agent import run_robots
-from sim_world.world import World, WorldConfig
+from sim_world.config import WorldConfig
+from sim_world.service import World
 from scenes import open_map
 from uav_agent.fleet import FleetLink
 from uav_robots.bench.lockstep import lanes

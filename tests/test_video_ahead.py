@@ -6,8 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
+from protocol.codec import encode
 from protocol.keys import Keys
-from protocol.messages import MissionStatus, encode
+from protocol.messages import MissionStatus
 from uav_robots.record.observer import Sample
 from protocol.mapfile import format_rows
 from uav_robots.record.recording import drawn

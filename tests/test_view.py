@@ -258,8 +258,9 @@ def test_recorded_mission_in_the_view(recorded):
 
 
 def test_a_view_client_gets_what_changed_since_its_last_update():
+    from protocol.codec import encode
     from protocol.keys import Keys
-    from protocol.messages import MissionEvent, Plan, RobotState, encode
+    from protocol.messages import MissionEvent, Plan, RobotState
     from uav_robots.view.state import FleetView, Seen
 
     k, view = Keys("f1"), FleetView()
@@ -283,8 +284,9 @@ def test_a_view_client_gets_what_changed_since_its_last_update():
 
 
 def test_the_view_moves_the_drone_with_its_pose_feed():
+    from protocol.codec import encode
     from protocol.keys import Keys
-    from protocol.messages import CameraFrame, VehiclePose, encode
+    from protocol.messages import CameraFrame, VehiclePose
     from uav_robots.view.state import FleetView, Seen
 
     k, view, seen = Keys("f1"), FleetView(), Seen()

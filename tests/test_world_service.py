@@ -14,11 +14,13 @@ import pytest
 
 from protocol.config import client_config
 from conformance import FakeUav, Hub, free_endpoint, stop_process
+from protocol.codec import decode, encode
 from protocol.keys import Keys
 from protocol.messages import (CameraFrame, CameraRequest, MissionEnd, MoveRequest, MoveResult, Record, RecordRequest,
-                               WorldInfo, WorldInfoRequest, decode, encode)
+                               WorldInfo, WorldInfoRequest)
 from protocol.transport import MemoryBus, MemoryTransport, ZenohTransport
-from sim_world.world import World, WorldConfig
+from sim_world.config import WorldConfig
+from sim_world.service import World
 from scenes import open_map
 
 REPO = Path(__file__).resolve().parents[1]

@@ -9,10 +9,11 @@ import threading
 import time
 from typing import Callable
 
+from protocol.codec import decode
 from protocol.errors import MissionError, ProtocolError, UavRobotsError
 from protocol.keys import Keys, ids_of_states_key, robot_id_from_key
 from protocol.log import Throttled
-from protocol.messages import Done, PlanAck, RobotState, StateBatch, decode
+from protocol.messages import Done, PlanAck, RobotState, StateBatch
 from protocol.transport import Transport
 
 

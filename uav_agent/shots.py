@@ -32,8 +32,9 @@ import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Callable
 
+from protocol.codec import decode
 from protocol.errors import MissionError, ProtocolError
-from protocol.messages import CameraFrame, decode
+from protocol.messages import CameraFrame
 from protocol.transport import PendingRequest
 
 Where = tuple[float, float, float]   # north, east, altitude above home

@@ -13,7 +13,7 @@ from protocol.process import command_main
 _SUBCOMMANDS = {
     "run": ("uav_robots.run.arguments", "add_run_parser"),
     "uav": ("uav_agent.cli", "add_uav_parser"),
-    "world": ("sim_world.world", "add_world_parser"),
+    "world": ("sim_world.cli", "add_world_parser"),
     "vehicle": ("sim_world.vehicle_cli", "add_vehicle_parser"),
     "robot": ("robot_agents.agent", "add_robot_parser"),
     "plan": ("uav_robots.plan_cli", "add_plan_parser"),

@@ -13,14 +13,16 @@ timeout) runs on wall time, since that is what the ground station's own timeouts
 
 The parts, each owning its state under the vehicle's one lock:
 - `dynamics`: the airframe (position, velocity, yaw), its physics step, the land detector;
-- `autopilot`: arming, flight modes, targets, auto-disarm; it flies the airframe;
+  `motion`: the motion laws a step follows (speed, acceleration and jerk limits);
+- `autopilot`: arming, flight modes, auto-disarm; it flies the airframe (`guidance`: the target of
+  each mode; `safety`: the failsafes and preflight checks);
 - `offboard`: the offboard setpoint stream; `params`: parameters and their protocol;
 - `telemetry`: message builders and streams; `commands`: message and MAV_CMD dispatch tables;
 - `link`: the MAVLink connection; `journal`: events and warnings; `vehicle`: the facade.
 """
 from .config import VehicleConfig
-from .dynamics import step_toward, step_yaw
 from .modes import LandedState, Mode
+from .motion import step_toward, step_yaw
 from .vehicle import Vehicle
 
 __all__ = ["LandedState", "Mode", "Vehicle", "VehicleConfig", "step_toward", "step_yaw"]

@@ -13,6 +13,7 @@ Preflight, as PX4's arming checks: no arming at or below BAT_LOW_THR (or below C
 no takeoff at a critical battery; armed on the ground without taking off, it disarms after
 COM_DISARM_PRFLT seconds, and after a touchdown after COM_DISARM_LAND.
 
+The targets each mode flies to are guidance.py's, the failsafes and preflight checks safety.py's.
 The autopilot lives in its estimate's frame (`Estimator.believed`): it holds where it believes
 it is; the airframe flies the true point that is (`Estimator.truth_of`).
 """
@@ -27,25 +28,23 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from .battery import Battery, Charge
 from .datalink import Datalink
-from .dynamics import Contact, Dynamics, Setpoint, Vec3
+from .dynamics import Contact, Dynamics
 from .estimator import Estimator
 from .geofence import Geofence
-from .journal import CRITICAL, EMERGENCY, INFO, WARNING, Journal
-from .mission import Item, Leg, Mission
+from .guidance import TAKEOFF_DONE_M, Guidance
+from .journal import CRITICAL, INFO, Journal
+from .mission import Mission
 from .modes import LandedState, Mode
+from .motion import Setpoint, Vec3
 from .offboard import Offboard
 from .params import Params
 from .payload import Payload
+from .safety import Safety
 
-TAKEOFF_DONE_M = 0.1  # takeoff ends within this distance of the takeoff altitude
 LAND_SLOW_ALT_M = 2.0  # below this altitude a landing descends at the land speed
-RTL_HOME_M = 0.3  # RTL lands once this close to home horizontally
-GF_ACTIONS = {2: Mode.HOLD, 3: Mode.RTL, 4: Mode.LAND, 5: Mode.LAND}  # GF_ACTION; 4 (terminate) lands here
-DLL_ACTIONS = {1: Mode.HOLD, 2: Mode.RTL, 3: Mode.LAND}  # NAV_DLL_ACT
-FLOWN_BACK = (Mode.LAND, Mode.RTL)  # failsafes never turn these into something else
 
 
-class Autopilot:
+class Autopilot(Guidance, Safety):
     """Arming, the flight mode, the target it flies to and the cruise speed. Actions return
     a MAV_RESULT; all of them hold the lock so that each is one decision."""
 
@@ -336,82 +335,6 @@ class Autopilot:
                         accel_xy=p.get("MPC_ACC_HOR"), accel_up=p.get("MPC_ACC_UP_MAX"),
                         accel_down=p.get("MPC_ACC_DOWN_MAX"), jerk=p.get("MPC_JERK_AUTO"))
 
-    def _offboard_target(self, wall_now: float, dt: float, speed: float, up: float, down: float) -> None:
-        if self._offboard.lost(wall_now):
-            self._journal.event("offboard setpoints lost")
-            self._enter_hold("offboard setpoints lost")
-            return
-        here, vel = self._position(), self._dynamics.state().vel
-        command = self._offboard.command(self._target, vel, dt, speed, up, down)
-        if command is not None:
-            target, velocity = command
-            if velocity is not None:
-                # where the velocity would carry the vehicle before it could stop: kept inside the fence
-                lookahead = math.hypot(*(v or 0.0 for v in velocity)) / max(self._params.get("MPC_ACC_HOR"), 0.1)
-                ahead = tuple(h + (v or 0.0) * lookahead for h, v in zip(here, velocity))
-                if self._fence.violation(ahead) is not None:
-                    target, velocity = self._fenced(ahead), None
-            self._target = self._fenced(target)
-            self._velocity = velocity
-        yaw = self._offboard.yaw(self._target_yaw, dt)
-        if yaw is not None:
-            self._target_yaw = yaw
-
-    def _fenced(self, target: Vec3) -> Vec3:
-        """An offboard target pulled back onto the geofence, said once per stretch of clamping."""
-        outside = self._fence.violation(target)
-        if outside is None:
-            self._clamping = False
-            return target
-        if not self._clamping:
-            self._journal.say(WARNING, f"Offboard target outside the geofence ({outside}): held at the fence")
-            self._clamping = True
-        return self._fence.clamp(target)
-
-    def _mission_target(self, here: Vec3, airborne: bool, speed: float) -> float:
-        step = self._mission.steer(here, airborne, self._dynamics.sim_time, self._act)
-        if step is None:
-            if not airborne:
-                self._disarm_soon()
-            return min(self._speed_xy, self._params.get("MPC_XY_VEL_MAX"))  # an item may have changed it
-        if step.leg is Leg.RETURN:
-            self.rtl("mission")
-            return speed
-        speed = min(self._speed_xy, self._params.get("MPC_XY_VEL_MAX"))
-        if step.leg is Leg.HOLD:
-            return speed
-        self._target = step.target
-        if step.leg is Leg.LAND:
-            self._landing = True
-            return 0.0
-        return 0.0 if step.leg is Leg.CLIMB else speed
-
-    def _rtl_target(self, here: Vec3, speed: float) -> float:
-        n, e, _ = here
-        if self._rtl_phase == "climb":
-            self._target = (n, e, -self._rtl_alt)
-            if self._dynamics.altitude >= self._rtl_alt - TAKEOFF_DONE_M:
-                self._rtl_phase = "return"
-            else:
-                return 0.0
-        if self._rtl_phase == "return":
-            self._target = (0.0, 0.0, -self._rtl_alt)
-            if math.hypot(n, e) <= RTL_HOME_M:
-                self._rtl_phase = "land"
-                self._journal.event("RTL: landing at home")
-            return speed
-        self._target = (0.0, 0.0, 0.0)
-        self._landing = True
-        return speed
-
-    def _act(self, item: Item) -> None:
-        """A mission's DO item, reached: the speed is the autopilot's, the camera and gimbal the payload's."""
-        if item.command == mavlink.MAV_CMD_DO_CHANGE_SPEED:
-            self.change_speed(int(item.param1) if math.isfinite(item.param1) else 1, item.param2)
-        elif self._payload is not None:
-            self._payload.on_item(item.command, (item.param1, item.param2, item.param3, item.param4, item.x, item.y,
-                                                 item.z), self._position(), self._dynamics.sim_time)
-
     def on_moved(self, setpoint: Setpoint) -> None:
         alt = self._dynamics.altitude
         if self._mode == Mode.TAKEOFF and abs(alt + setpoint.target[2]) <= TAKEOFF_DONE_M:
@@ -435,76 +358,6 @@ class Autopilot:
                 and now - self._touchdown_at >= self._params.get("COM_DISARM_LAND")):
             self._disarm("disarmed after landing")
 
-    # --- failsafes (the caller holds the lock; the vehicle is armed and in the air) ----------
-
-    def _failsafes(self, charge: Charge | None, wall_now: float) -> None:
-        act = int(self._params.get("COM_LOW_BAT_ACT"))
-        if charge is Charge.CRITICAL and act in (2, 3):
-            self._failsafe(Mode.RTL if act == 3 else Mode.LAND, "critical battery", keep=True)
-        elif charge is Charge.EMERGENCY and act in (2, 3):
-            self._failsafe(Mode.LAND, "emergency battery", keep=True)
-        if self._battery.remaining <= 0.0 and (self._kept is None or self._kept[0] != Mode.LAND):
-            # an empty pack cannot wait for the operator's choice of action
-            self._journal.say(EMERGENCY, "Battery depleted: landing")
-            self._failsafe(Mode.LAND, "battery depleted", keep=True)
-        outside = self._fence.violation(self._position())
-        if outside is not None and not self._breached:
-            self._journal.say(CRITICAL, f"Geofence violated: {outside}")
-            action = GF_ACTIONS.get(int(self._params.get("GF_ACTION")))
-            if action is not None:
-                self._failsafe(action, "geofence")
-        self._breached = outside is not None
-        self._check_datalink(wall_now)
-        if self._pending is not None and wall_now >= self._pending[1]:
-            mode, _, why = self._pending
-            self._pending = None
-            self._failsafe(mode, why)
-
-    def _check_datalink(self, wall_now: float) -> None:
-        action = DLL_ACTIONS.get(int(self._params.get("NAV_DLL_ACT")))
-        lost = self._datalink.silent_for(wall_now) > self._params.get("COM_DL_LOSS_T")
-        if lost and not self._link_lost and action is not None:
-            if self._mode in FLOWN_BACK:
-                self._journal.say(CRITICAL, "Data link lost")
-            else:
-                delay = self._params.get("COM_FAIL_ACT_T")
-                self._journal.say(CRITICAL, "Data link lost: holding" + (
-                    f", {action.name} in {delay:g} s" if action is not Mode.HOLD else ""))
-                self._enter_hold("data link lost")
-                if action is not Mode.HOLD:
-                    self._pending = (action, wall_now + delay, "data link lost")
-        elif not lost and self._link_lost:
-            self._journal.say(INFO, "Data link regained")
-            if self._pending is not None and self._pending[2] == "data link lost":
-                self._pending = None
-        self._link_lost = lost and action is not None
-
-    def land_now(self, why: str) -> None:
-        """Land where it is, kept as a failsafe's landing is (the process is told to stop in the air)."""
-        with self._lock:
-            if self._armed and self._dynamics.airborne:
-                self._failsafe(Mode.LAND, why, keep=True)
-
-    def _failsafe(self, mode: Mode, why: str, keep: bool = False) -> None:
-        """Fly `mode` because of `why`; a landing or return already under way is kept (a land
-        is never turned back into a return). With `keep` (a battery failsafe) the mode flown is
-        kept until disarmed: commands that would leave it are denied."""
-        if keep and self._mode in (Mode.LAND, Mode.RTL) and (self._kept is None or self._mode == Mode.LAND):
-            self._kept = (self._mode, why)  # a return or landing already flown is now the failsafe's
-        if self._mode == mode or self._mode == Mode.LAND or (self._mode == Mode.RTL and mode != Mode.LAND):
-            return
-        self._journal.say(CRITICAL, f"Failsafe: {why}, {mode.name}")
-        if mode == Mode.RTL and self.rtl(why) == mavlink.MAV_RESULT_ACCEPTED:
-            flown = Mode.RTL
-        elif mode == Mode.HOLD:
-            self._enter_hold(why)
-            flown = Mode.HOLD
-        else:
-            self.land()
-            flown = Mode.LAND
-        if keep:
-            self._kept = (flown, why)
-
     # --- transitions (the caller holds the lock) ----------------------------------------------
 
     def _switch(self, mode: Mode, why: str | None = None) -> None:
@@ -521,24 +374,6 @@ class Autopilot:
     def _deny_kept(self, what: str) -> int:
         mode, why = self._kept
         return self._refuse(f"{what} denied: failsafe {mode.name} ({why}) in progress")
-
-    def _preflight_battery(self) -> str | None:
-        """Why the battery forbids arming (PX4: at or below BAT_LOW_THR, or below COM_ARM_BAT_MIN), or None."""
-        left = self._battery.remaining
-        low, minimum = self._params.get("BAT_LOW_THR"), self._params.get("COM_ARM_BAT_MIN")
-        if self._battery.charge_of(left) >= Charge.LOW:
-            return f"low battery ({left:.0%}, BAT_LOW_THR {low:.0%})"
-        if left < minimum:
-            return f"battery {left:.0%} < COM_ARM_BAT_MIN {minimum:.0%}"
-        return None
-
-    def _preflight_timeout(self, wall_now: float) -> bool:
-        """Disarm a vehicle armed on the ground that did not take off within COM_DISARM_PRFLT s."""
-        limit = self._params.get("COM_DISARM_PRFLT")
-        if limit > 0 and wall_now - self._armed_wall >= limit and self._mode not in (Mode.TAKEOFF, Mode.MISSION):
-            self._disarm(f"disarmed: no takeoff within {limit:g} s of arming")
-            return True
-        return False
 
     def _disarm(self, why: str) -> None:
         self._armed = False

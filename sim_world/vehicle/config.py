@@ -59,7 +59,7 @@ class VehicleConfig:
     # Arming is refused this many simulated seconds after boot (an estimator settling; ArduPilot SITL takes ~38 s)
     ready_after_s: float = 0.0
     seed: int = 0                  # of the wobble and the estimator's noise
-    # MPC_ACC_HOR / MPC_ACC_UP_MAX / MPC_ACC_DOWN_MAX / MPC_JERK_AUTO (see dynamics.step_limited)
+    # MPC_ACC_HOR / MPC_ACC_UP_MAX / MPC_ACC_DOWN_MAX / MPC_JERK_AUTO (see motion.step_limited)
     max_accel_m_s2: float = 5.0
     max_accel_up_m_s2: float = 4.0
     max_accel_down_m_s2: float = 3.0

@@ -17,7 +17,7 @@ import random
 import threading
 
 from .config import VehicleConfig
-from .dynamics import Vec3
+from .motion import Vec3
 
 BIAS_TAU_S = 300.0  # how long the position error takes to wander to a new value (a GPS's drift: minutes)
 KNOT_S = 1.0        # the bias is drawn once a simulated second and interpolated between: a drift, not a jitter

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from .dynamics import Vec3
+from .motion import Vec3
 from .params import Params
 
 FENCE_SLACK_M = 0.05  # a vehicle parked on the fence (a clamped target) is not outside it

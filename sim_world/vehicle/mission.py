@@ -22,7 +22,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from protocol.geo import geo_to_ned
 
-from .dynamics import Vec3
+from .motion import Vec3
 from .params import Params
 
 m = mavlink

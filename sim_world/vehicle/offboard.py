@@ -24,9 +24,10 @@ from pymavlink.dialects.v20 import common as mavlink
 from protocol.geo import geo_to_ned
 
 from .config import VehicleConfig
-from .dynamics import Dynamics, Vec3
+from .dynamics import Dynamics
 from .journal import WARNING, Journal
 from .link import Link
+from .motion import Vec3
 
 m = mavlink
 OFFBOARD_LOSS_S = 1.0  # PX4's COM_OF_LOSS_T: no setpoint for this long -> hold

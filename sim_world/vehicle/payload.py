@@ -15,7 +15,7 @@ from typing import Callable
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from .dynamics import Vec3
+from .motion import Vec3
 from .journal import Journal
 
 m = mavlink

@@ -30,7 +30,7 @@ CASES = {
 def bench(map_spec: str, robots: int, rounds: int) -> list[dict]:
     from scenarios.maps import place, resolve_map
     from sim_world.camera import PoseEstimator, Scene, VehicleView, camera_model_from, capture_frame, scene_landmarks
-    from sim_world.world import DRONE_CAMERA
+    from sim_world.config import DRONE_CAMERA
     from uav_agent.survey import survey_poses
 
     _, free = resolve_map(map_spec, 0)

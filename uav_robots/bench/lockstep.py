@@ -141,7 +141,8 @@ class Measured:
 
 def run_mission(n: int, per_process: int, ticks: int, tmp: Path, moves: str = "ahead") -> Measured:
     """Real world and robot processes execute the lane plan; ticks/s over the timed ticks."""
-    from protocol.messages import MissionEnd, Plan, Record, RecordRequest, Tick, decode, encode
+    from protocol.codec import decode, encode
+    from protocol.messages import MissionEnd, Plan, Record, RecordRequest, Tick
     from uav_agent.fleet import FleetLink
 
     lane = lanes(n)

@@ -28,7 +28,7 @@ import numpy as np
 from protocol.errors import UavRobotsError
 from scenarios.maps import place, resolve_map
 from sim_world.camera import PRESETS, CameraModel, PoseEstimator, Scene, VehicleView, capture_frame, scene_landmarks
-from sim_world.world import DRONE_CAMERA
+from sim_world.config import DRONE_CAMERA
 from uav_agent.mission import MissionConfig
 from uav_agent.mission.looks import border as survey_border
 from uav_agent.perception import Landmarks, decode_frame, perceive

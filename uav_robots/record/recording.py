@@ -22,7 +22,8 @@ from typing import Any, Iterable
 import numpy as np
 
 from protocol import messages
-from protocol.messages import CameraFrame, StateBatch, VehiclePose, decode, encode
+from protocol.codec import decode, encode
+from protocol.messages import CameraFrame, StateBatch, VehiclePose
 from protocol.schemas import SCHEMA_DIR
 
 from .observer import Sample

@@ -15,10 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
+from protocol.codec import decode
 from protocol.errors import ProtocolError
 from protocol.keys import Keys
 from protocol.mapfile import format_rows
-from protocol.messages import MissionStatus, decode
+from protocol.messages import MissionStatus
 
 from . import recording, replay
 from .observer import Observer

@@ -104,13 +104,13 @@ def check_autopilot(args) -> None:
 
 def check_arguments(args) -> tuple[str, object]:
     """Every input of `run`, checked before any process starts: one line and exit 2 for the first bad one."""
-    from protocol.messages import MAX_ROBOTS
+    from protocol.bounds import MAX_ROBOTS
     from protocol.faults import parse_fault
     from scenarios.limits import check_fleet, check_floor
     from scenarios.maps import place, resolve_map
     from sim_world.camera import CameraModel
-    from sim_world.world import (DRONE_CAMERA, MOVE_BATCH_TIMEOUT_S, WorldConfig, camera_options, is_world_fault,
-                                 vehicle_config, world_faults)
+    from sim_world.camera.model import camera_options
+    from sim_world.config import DRONE_CAMERA, MOVE_BATCH_TIMEOUT_S, WorldConfig, vehicle_config
 
     _number("--robots", args.robots, 1, MAX_ROBOTS)
     check_fleet(args.robots)
@@ -148,14 +148,11 @@ def check_arguments(args) -> tuple[str, object]:
         CameraModel(**{**DRONE_CAMERA, **camera_options(args.camera)})
     except (MissionError, TypeError) as exc:
         raise UavRobotsError(f"--camera {args.camera!r}: {exc}") from None
-    for r in world_faults([f for f in args.fault if is_world_fault(f)]).skids:
-        if r >= args.robots:
-            raise UavRobotsError(f"--fault skid:{r}@...: there is no robot {r} in a fleet of {args.robots}")
     if not args.autopilot:
         vehicle_config(WorldConfig(fleet="check", gcs=args.gcs, mavlink_key=args.mavlink_key,
                                    mavlink_bind=args.mavlink_bind))
-    for f in map(parse_fault, (f for f in args.fault if not is_world_fault(f))):
-        if f.robot >= args.robots:
+    for f in map(parse_fault, args.fault):
+        if f.robot is not None and f.robot >= args.robots:
             raise UavRobotsError(f"--fault {f}: there is no robot {f.robot} in a fleet of {args.robots}")
     if args.planner:
         from uav_agent.planning.registry import get_planner

@@ -29,7 +29,6 @@ from protocol.keys import format_ids, new_fleet_name
 from protocol.process import die_with_parent
 from protocol.security import robot_identity
 from robot_agents import forked
-from sim_world.world import is_world_fault
 
 from ..common import outputs
 from ..common.ports import free_port
@@ -179,13 +178,8 @@ class Launcher:
                                   *(["--quiet"] if a.quiet or a.json else []),
                                   *(["--observers", "1"] if self.records() else []),
                                   *(["--summary", "none"] if a.json else [])], terminal=True)
-        self._spawn("world", "sim_world", [*common, *self.session_args("world"), "--map", a.map,
-                              "--robots", str(a.robots), "--seed", str(a.seed),
-                              "--connectivity", str(a.connectivity),
-                              *self.follow_args(), "--time-scale", str(a.time_scale),
-                              *(["--camera", a.camera] if a.camera else []),
-                              "--mavlink-bind", a.mavlink_bind, *camera_world,
-                              *[x for f in a.fault if is_world_fault(f) for x in ("--fault", f)]])
+        self._spawn("world", "sim_world", [*common, *self.session_args("world"), "--spec", str(self.spec),
+                              *self.follow_args(), *camera_world])
         self.robots_due = time.monotonic() + ROBOTS_AT_LATEST_S
         return uav
 
@@ -193,23 +187,16 @@ class Launcher:
         """Our simulated autopilot as a process of its own, as a SITL binary (none with --autopilot): the UAV
         flies it on its MAVLink port, the world follows its pose on a third link, the same path as with
         any autopilot's telemetry."""
-        from sim_world.camera import CameraModel
-        from sim_world.world import DRONE_CAMERA, camera_options, fence_reach_m
+        from sim_world.config import fence_reach_m
 
-        a = self.args
-        if getattr(a, "autopilot", None):
+        if getattr(self.args, "autopilot", None):
             return None
-        wobble = CameraModel(**{**DRONE_CAMERA, **camera_options(a.camera)}).wobble_deg
         reach = fence_reach_m(self.floor_shape, 1.0) if self.floor_shape is not None else 0.0
         return self._spawn("vehicle", "sim_world.vehicle", [
+            "--spec", str(self.spec),
             "--mavlink", f"udpout:127.0.0.1:{self.udp}", "--pose-link", f"udpout:127.0.0.1:{self.pose_udp}",
-            "--time-scale", str(a.time_scale), "--seed", str(a.seed), "--wobble", str(wobble),
-            "--preset", getattr(a, "vehicle_preset", "outdoor"),
             # The geofence must not cut off part of a large floor (the vehicle's default covers 1 km).
-            *(["--param", f"GF_MAX_HOR_DIST={reach:.1f}"] if reach > DEFAULT_GEOFENCE_M else []),
-            *(["--gcs", a.gcs] if a.gcs else []),
-            *(["--mavlink-key", a.mavlink_key] if a.mavlink_key else []),
-            "--mavlink-bind", a.mavlink_bind])
+            *(["--param", f"GF_MAX_HOR_DIST={reach:.1f}"] if reach > DEFAULT_GEOFENCE_M else [])])
 
     def autopilot_url(self) -> str:
         """The UAV's MAVLink link (MAVSDK's spelling): --autopilot's, or where our vehicle sends."""

@@ -14,9 +14,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
+from protocol.bounds import MAX_ROBOTS
 from protocol.errors import UavRobotsError
 from protocol.keys import Keys
-from protocol.messages import MAX_ROBOTS
 from protocol.security import OBSERVER, UAV, WORLD, Identity, TlsFiles, robot_identity, secure_client, secure_router
 
 DEFAULT_PORT = 7447

@@ -12,7 +12,8 @@ import threading
 from dataclasses import dataclass, field
 from typing import Any
 
-from protocol.messages import CameraFrame, VehiclePose, decode
+from protocol.codec import decode
+from protocol.messages import CameraFrame, VehiclePose
 
 
 @dataclass
