@@ -13,7 +13,8 @@ from urllib.parse import urlsplit
 
 from protocol.errors import MissionError, UavRobotsError
 from protocol.geo import geo_to_ned
-from protocol.messages import CameraFrame, encode
+from protocol.messages import CameraFrame
+from protocol.codec import encode
 from protocol.transport import PendingRequest
 
 KINDS = ("zenoh", "mavlink", "video")

@@ -9,7 +9,8 @@ import urllib.request
 from typing import Any, Callable
 
 from protocol.errors import MissionError, UavRobotsError
-from protocol.messages import CameraFrame, decode
+from protocol.messages import CameraFrame
+from protocol.codec import decode
 from protocol.transport import PendingRequest
 
 from .base import (ACK_TIMEOUT_S, CAMERA_COMPONENT, CAMERA_TIMEOUT_S, FETCH_TIMEOUT_S, OUR_VENDOR, QUERY_TIMEOUT_S,

@@ -11,7 +11,8 @@ from typing import Any, Callable
 from urllib.parse import urlsplit
 
 from protocol.errors import MissionError, UavRobotsError
-from protocol.messages import CameraFrame, decode
+from protocol.messages import CameraFrame
+from protocol.codec import decode
 from protocol.transport import PendingRequest
 
 from .base import (CAMERA_TIMEOUT_S, FETCH_TIMEOUT_S, VIDEO_FRAME_TIMEOUT_S, CameraSource, CameraSourceConfig, Pose,

@@ -5,7 +5,8 @@ from typing import Any, Callable
 
 from protocol.errors import MissionError, ProtocolError
 from protocol.keys import Keys
-from protocol.messages import (CameraFrame, CameraRequest, WorldInfoRequest, decode, encode)
+from protocol.messages import CameraFrame, CameraRequest, WorldInfoRequest
+from protocol.codec import decode, encode
 from protocol.transport import PendingRequest, Transport
 
 from .base import CAMERA_TIMEOUT_S, QUERY_TIMEOUT_S, CameraSource

@@ -8,7 +8,8 @@ from typing import TYPE_CHECKING, Any
 
 from protocol.errors import MissionError, ProtocolError
 from protocol.keys import Keys
-from protocol.messages import CameraFrame, MissionEvent, MissionStatus, WorldInfo, decode, encode
+from protocol.messages import CameraFrame, MissionEvent, MissionStatus, WorldInfo
+from protocol.codec import decode, encode
 from protocol.transport import Transport, open_session, zenoh_config
 
 from ..camera_source.base import CameraSource

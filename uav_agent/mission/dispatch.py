@@ -6,7 +6,8 @@ import dataclasses
 import time
 
 from protocol.errors import MissionError
-from protocol.messages import PROTOCOL_VERSION, Plan, encode
+from protocol.messages import PROTOCOL_VERSION, Plan
+from protocol.codec import encode
 
 from . import monitor
 from .context import MissionContext

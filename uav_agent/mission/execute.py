@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import time
 
-from protocol.messages import Tick, encode
+from protocol.messages import Tick
+from protocol.codec import encode
 
 from . import dispatch, monitor, repair
 from .context import MissionContext

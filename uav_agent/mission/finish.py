@@ -6,7 +6,8 @@ import signal
 import time
 
 from protocol.errors import MissionError
-from protocol.messages import MissionEnd, encode
+from protocol.messages import MissionEnd
+from protocol.codec import encode
 
 from . import score
 from .context import MissionContext
