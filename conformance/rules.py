@@ -14,7 +14,6 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-SUITES = {"robot": "test_robot_conformance.py", "uav": "test_uav_conformance.py"}
 DOC = Path(__file__).resolve().parents[1] / "docs" / "conformance-rules.md"
 
 
@@ -421,8 +420,8 @@ def markdown() -> str:
     out = ["# Conformance rules",
            "",
            "Every rule of [protocol.md](protocol.md) that a robot (R) or a UAV (U) must keep, the section it comes",
-           "from, the conformance tests that check it (in `conformance/test_robot_conformance.py` and",
-           "`conformance/test_uav_conformance.py`), and the mutant that proves they do: a copy of our own robot or",
+           "from, the conformance tests that check it (in `conformance/test_robot_*.py` and",
+           "`conformance/test_uav_*.py`), and the mutant that proves they do: a copy of our own robot or",
            "UAV with that one rule broken (`python -m conformance.mutants robot|uav --break ID ...`), which the",
            "listed tests must fail (`tests/test_conformance_mutants.py` runs them all in CI). *Since* is the",
            "protocol version that introduced the rule: a robot whose `PlanAck` states an older `protocol` (none",
