@@ -1,8 +1,8 @@
 """Options and fixtures of the robot and UAV conformance suites.
 
-    python -m pytest conformance/test_robot_conformance.py \
+    python -m pytest conformance/test_robot_*.py \
         --robot-cmd "my-robot --id {id} --fleet {fleet} --router {endpoint}"
-    python -m pytest conformance/test_uav_conformance.py \
+    python -m pytest conformance/test_uav_*.py \
         --uav-cmd "my-uav --fleet {fleet} --router {endpoint} --mavlink {mavlink} --robots {robots}"
 """
 from __future__ import annotations
@@ -14,11 +14,15 @@ import pytest
 
 from conformance import DEFAULT_POOL_CMD, DEFAULT_ROBOT_CMD, FakeUav, FakeWorld, Hub, start_robot, stop_process
 from conformance.rules import newer_rules, since_of_test
+from conformance.suite_files import side_of
 from conformance.uav_harness import DEFAULT_UAV_CMD, PLACEHOLDERS, UavOptions, uav_command
+from conformance.uav_missions import SLOW, in_the_background
 from protocol.errors import MissionError
 from protocol.messages import PROTOCOL_VERSION
 
-ROBOT_SUITE = "test_robot_conformance"
+# The suites' shared steps assert too: rewritten as the tests are (before a test module imports them),
+# their failures show the values compared.
+pytest.register_assert_rewrite("conformance.robot_steps", "conformance.uav_steps")
 _PROTOCOL = pytest.StashKey[tuple[int, str]]()   # the robot's protocol version, and how the suite knows it
 
 
@@ -127,7 +131,7 @@ def robot_protocol(request: pytest.FixtureRequest) -> int:
 @pytest.fixture(autouse=True)
 def _rules_of_its_version(request: pytest.FixtureRequest) -> None:
     """A robot is held to the rules of the protocol version it keeps: a test of a newer rule is skipped."""
-    if request.module.__name__.rsplit(".", 1)[-1] != ROBOT_SUITE:
+    if side_of(request.module.__name__) != "robot":
         return
     version = request.getfixturevalue("robot_protocol")
     test = request.node.originalname
@@ -227,3 +231,17 @@ def uav_options(request: pytest.FixtureRequest) -> UavOptions:
     return UavOptions(cmd=o("--uav-cmd"), map=o("--uav-map"), robots=o("--uav-robots"), seed=o("--uav-seed"),
                       time_scale=o("--uav-time-scale"), tick_timeout_s=o("--uav-tick-timeout"),
                       mission_timeout_s=o("--uav-timeout"))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _slow_missions_in_the_background(request: pytest.FixtureRequest):
+    """The UAV suite's slow missions whose tests are selected start with the session, in whichever file of the
+    suite it begins, and run beside the other missions (conformance/uav_missions.py)."""
+    wanted = sorted({name for item in request.session.items for name in getattr(item, "fixturenames", ())
+                     if name in SLOW})
+    if not wanted:   # the robot suite, or no test of a slow mission selected
+        yield
+        return
+    with in_the_background(wanted, request.getfixturevalue("uav_options"),
+                           request.getfixturevalue("tmp_path_factory")):
+        yield

@@ -21,7 +21,8 @@ from pathlib import Path
 import pytest
 
 from conformance import mutants
-from conformance.rules import DOC, RULES, SUITES, markdown, rules, since_of_test
+from conformance.rules import DOC, RULES, markdown, rules, since_of_test
+from conformance.suite_files import SUITES, suite_files, suite_tests
 from suites import run_suite
 
 pytestmark = pytest.mark.mutation
@@ -65,7 +66,7 @@ def _suite(side: str, rule: str, tests: tuple[str, ...]) -> Verdict:
         # Only the rule's own tests run, so their first failure already catches the mutant.
         argv += ["-k", " or ".join(tests), "--maxfail=1"]
     t = time.monotonic()
-    run = run_suite(f"conformance/{SUITES[side]}", *argv, timeout=400)
+    run = run_suite(*map(str, suite_files(side)), *argv, timeout=400)
     return Verdict(rule, run.returncode, frozenset(FAILED.findall(run.stdout)), time.monotonic() - t,
                    run.stdout[-2500:] + run.stderr[-1000:])
 
@@ -85,14 +86,11 @@ def verdicts() -> dict[str, Verdict]:
 
 
 def test_every_rule_has_a_test_and_a_mutant():
-    import conformance.test_robot_conformance as robot_suite
-    import conformance.test_uav_conformance as uav_suite
-
-    suites = {"robot": robot_suite, "uav": uav_suite}
+    suites = {"robot": suite_tests("robot"), "uav": suite_tests("uav")}
     for r in RULES:
         assert r.tests, f"{r.id} has no test"
         for name in r.tests:
-            assert callable(getattr(suites[r.side], name, None)), f"{r.id}: no test {name} in {SUITES[r.side]}"
+            assert callable(suites[r.side].get(name)), f"{r.id}: no test {name} in conformance/{SUITES[r.side]}"
     for side in ("robot", "uav"):
         assert sorted(mutants.breaks(side)) == sorted(r.id for r in rules(side)), f"{side}: rules without a mutant " \
             "or mutants without a rule"

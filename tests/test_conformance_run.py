@@ -8,13 +8,14 @@ from pathlib import Path
 
 import pytest
 
+from conformance.suite_files import suite_files
 from suites import outcome, run_suite
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def _suite(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    return run_suite("conformance/test_robot_conformance.py", *args, timeout=timeout)
+    return run_suite(*map(str, suite_files("robot")), *args, timeout=timeout)
 
 
 @pytest.mark.slow

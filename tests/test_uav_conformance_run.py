@@ -8,14 +8,15 @@ from pathlib import Path
 
 import pytest
 
+from conformance.suite_files import suite_files
 from suites import outcome, run_suite
 
 REPO = Path(__file__).resolve().parents[1]
-SUITE = "conformance/test_uav_conformance.py"
+SUITE = [str(path) for path in suite_files("uav")]
 
 
 def _suite(*args: str, timeout: float = 280) -> subprocess.CompletedProcess:
-    return run_suite(SUITE, *args, timeout=timeout)
+    return run_suite(*SUITE, *args, timeout=timeout)
 
 
 @pytest.mark.slow

@@ -9,6 +9,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import shlex
 import socket
 import subprocess
@@ -18,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from conformance.rules import newer_rules
+from conformance.suite_files import suite_files
 from suites import outcome, run_suite
 
 REPO = Path(__file__).resolve().parents[1]
@@ -28,7 +30,7 @@ ARGS = "--fleet {fleet} --connect {endpoint}"
 
 
 def _suite(*args: str) -> subprocess.CompletedProcess:
-    return run_suite("conformance/test_robot_conformance.py", "--robot-cmd", f"{V1} --id {{id}} {ARGS}",
+    return run_suite(*map(str, suite_files("robot")), "--robot-cmd", f"{V1} --id {{id}} {ARGS}",
                      "--robot-pool-cmd", f"{V1} --ids {{ids}} {ARGS}", *args, timeout=240)
 
 
@@ -61,7 +63,7 @@ def test_held_to_protocol_2_it_fails_the_rules_that_changed():
                "test_diagonal_steps_are_moves_when_the_plan_says_8"]                  # R10
     run = _suite("--robot-protocol", "2", "-k", " or ".join(changed), "-rf")
     assert run.returncode == 1, run.stdout[-3000:]
-    failed = {name for name in changed if f"FAILED conformance/test_robot_conformance.py::{name}" in run.stdout}
+    failed = set(re.findall(r"^FAILED conformance/test_robot_\w+\.py::(\w+)", run.stdout, re.M)) & set(changed)
     assert failed == set(changed), run.stdout[-3000:]
 
 

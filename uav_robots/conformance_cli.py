@@ -5,11 +5,10 @@ import argparse
 import subprocess
 import sys
 import tempfile
-from pathlib import Path
 
 from protocol.errors import UavRobotsError
 
-SUITES = {"robot": ("test_robot_conformance.py", "--robot-cmd"), "uav": ("test_uav_conformance.py", "--uav-cmd")}
+SUITES = {"robot": "--robot-cmd", "uav": "--uav-cmd"}   # the option that gives each side's suite its --cmd
 
 
 def add_conformance_parser(subparsers) -> argparse.ArgumentParser:
@@ -29,8 +28,8 @@ def add_conformance_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def conformance_command(args: argparse.Namespace) -> int:
-    import conformance
     from conformance.rules import text_table
+    from conformance.suite_files import suite_files
 
     # Options after KIND land in pytest_args (argparse.REMAINDER takes all that follows a positional):
     # take ours back from there.
@@ -45,11 +44,10 @@ def conformance_command(args: argparse.Namespace) -> int:
     if args.kind is None:
         raise UavRobotsError("conformance: give robot or uav (or --list-rules)")
 
-    suite, option = SUITES[args.kind]
-    path = Path(conformance.__file__).resolve().parent / suite
+    option, files = SUITES[args.kind], [str(path) for path in suite_files(args.kind)]
     with tempfile.TemporaryDirectory(prefix="uav-robots-conformance-") as base:
         # A temporary directory of its own: a numbered one would delete those of other pytest runs.
-        argv = [sys.executable, "-m", "pytest", str(path), "-q", "-p", "no:cacheprovider", f"--basetemp={base}",
+        argv = [sys.executable, "-m", "pytest", *files, "-q", "-p", "no:cacheprovider", f"--basetemp={base}",
                 *([option, cmd] if cmd else []), *rest]
         # pytest's own exit code: 0 all rules kept, 1 a rule broken, 2-4 usage problems.
         return subprocess.run(argv, stdin=subprocess.DEVNULL).returncode
