@@ -3,7 +3,7 @@
 One table, three readers: docs/conformance-rules.md is written from it
 (`python -m conformance.rules --write`; a test fails while the file differs),
 `uav-robots conformance --list-rules` prints it, and the mutation test
-(tests/test_conformance_mutants.py) breaks each rule in a copy of our own robot
+(tests/conformance/test_conformance_mutants.py) breaks each rule in a copy of our own robot
 or UAV (`conformance.mutants`) and runs exactly the tests listed here, which
 must then fail. The rows are in `robot_rules.py` and `uav_rules.py`, a row is a `rule.Rule`.
 """
@@ -35,7 +35,7 @@ UNCHECKED: tuple[tuple[str, str, str, str], ...] = (
     ("robot", "Timeouts and waits", "it waits for the UAV, a plan or a tick as long as it runs",
      "no bounded test can tell forever from long; R67 checks it waits for a UAV not yet seen"),
     ("robot", "Security", "its session opens with its own certificate (`robot-<id>`, `robots-<ids>`)",
-     "the suite's router has no TLS; `tests/test_secure.py` checks ours"),
+     "the suite's router has no TLS; `tests/uav_robots/test_secure.py` checks ours"),
     ("uav", E, "only a `Done` whose `tick` is after the current plan's `start_tick` counts for that plan",
      "the camera decides either way, U14 and U26: a stale `Done` only changes how long the UAV waits before it looks"),
     ("uav", W, "an answer from `world/camera` within 30 s and from `world/record` within 10 s",
@@ -85,7 +85,7 @@ def markdown() -> str:
            "from, the conformance tests that check it (in `conformance/test_robot_*.py` and",
            "`conformance/test_uav_*.py`), and the mutant that proves they do: a copy of our own robot or",
            "UAV with that one rule broken (`python -m conformance.mutants robot|uav --break ID ...`), which the",
-           "listed tests must fail (`tests/test_conformance_mutants.py` runs them all in CI). *Since* is the",
+           "listed tests must fail (`tests/conformance/test_conformance_mutants.py` runs them all in CI). *Since* is the",
            "protocol version that introduced the rule: a robot whose `PlanAck` states an older `protocol` (none",
            "stated: 1) is not held to it, and the suite says so (docs/protocol.md, Versioning).",
            "",

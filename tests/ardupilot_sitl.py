@@ -2,7 +2,7 @@
 
 The repository carries none of ArduPilot's code or build steps: build ArduCopter SITL from its public
 sources as ArduPilot's own documentation says, then
-`UAV_ROBOTS_ARDUPILOT_SITL=<checkout>/build/sitl/bin/arducopter python3 -m pytest tests/test_real_autopilot.py`.
+`UAV_ROBOTS_ARDUPILOT_SITL=<checkout>/build/sitl/bin/arducopter python3 -m pytest tests/uav_agent/test_real_autopilot.py`.
 Its default parameters are the checkout's own (`Tools/autotest/default_params/copter.parm`, found from
 the binary's place in the checkout, or named by `UAV_ROBOTS_ARDUPILOT_DEFAULTS`), as `sim_vehicle.py`
 starts it. Without the variable every test that needs it is skipped, saying why.

@@ -1,7 +1,7 @@
 """Hypothesis strategies for valid messages of every type, read off the bounded field types.
 
 Sizes are capped well below the protocol's limits so examples stay fast; the limits
-themselves are tested at their exact edges in tests/test_protocol.py.
+themselves are tested at their exact edges in tests/protocol/test_protocol.py.
 """
 from functools import cache
 from typing import Any, Literal, get_args, get_origin

@@ -20,10 +20,9 @@ from protocol.keys import Keys
 from protocol.messages import (Done, MissionEnd, MoveRequest, MoveResult, Plan, RobotState, Tick, WorldInfo,
                                WorldInfoRequest)
 from protocol.transport import ZenohTransport, open_session
-from test_world_service import mem_world  # noqa: F401 - the fixture: a world on an in-memory bus
 from uav_robots.secure.fleet import make_fleet_dir, new_fleet, read_fleet_dir
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 WAIT_S = 3.0
 
 

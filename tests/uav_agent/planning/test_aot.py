@@ -19,7 +19,7 @@ from uav_agent.planning.compile.prebuilt import kind
 # The module's fixture builds the planners ahead of time (about a minute): out of the developer lane.
 pytestmark = pytest.mark.slow
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 
 needs_compiler = pytest.mark.skipif(missing_tools() is not None,
                                     reason=f"the ahead-of-time build needs {missing_tools()}")

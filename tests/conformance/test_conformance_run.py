@@ -11,7 +11,7 @@ import pytest
 from conformance.suite_files import suite_files
 from suites import outcome, run_suite
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _suite(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:

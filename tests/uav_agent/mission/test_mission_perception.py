@@ -1,7 +1,7 @@
 """Whole missions with the honest camera: the estimated pose, lens, JPEG and degradations.
 
 Real processes (world, UAV, robots) through `uav-robots run`; the report's perceived map is
-checked against the world's ground truth. The default mission (tests/test_end_to_end.py) runs
+checked against the world's ground truth. The default mission (tests/uav_robots/test_end_to_end.py) runs
 the default camera, the realistic one, and checks its registration the same way."""
 from __future__ import annotations
 

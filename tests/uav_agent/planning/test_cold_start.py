@@ -17,7 +17,7 @@ from uav_agent.planning.compile import cache, lock, stale
 from uav_agent.planning.build.interpreted import InterpretedPlanner, fits, plan_interpreted
 from uav_agent.planning.pipeline import plan_mission
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 MAPF = cache.PLANNING_DIR / "mapf"      # where most kernels live, LaCAM's search among them
 
 

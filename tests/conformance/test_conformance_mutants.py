@@ -5,7 +5,7 @@ For each rule of conformance/rules.py the suite of its side runs, as a user woul
 against `python -m conformance.mutants SIDE --break ID`; at least one of them
 must fail. Three suites run at a time: on 2 cores they mostly wait (on the
 simulated flight, on timeouts the mutants provoke), they do not compute. Our own implementations passing the
-same suites is tests/test_conformance_run.py and tests/test_uav_conformance_run.py.
+same suites is tests/conformance/test_conformance_run.py and tests/conformance/test_uav_conformance_run.py.
 """
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ from suites import run_suite
 
 pytestmark = pytest.mark.mutation
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PY = shlex.quote(sys.executable)
 ROBOT_ARGS = "--fleet {fleet} --connect {endpoint}"
 UAV_ARGS = ("--fleet {fleet} --connect {endpoint} --mavlink udpin://127.0.0.1:{mavlink_port} "

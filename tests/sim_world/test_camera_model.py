@@ -264,7 +264,8 @@ def test_the_vehicle_tilts_while_accelerating_and_only_wobbles_at_rest():
 
 
 def test_the_vehicle_reports_its_attitude_over_mavlink():
-    from test_vehicle import NAN, Client, mavlink
+    from mavlink_gcs import Client
+    from pymavlink.dialects.v20 import common as mavlink
     from sim_world.vehicle import Vehicle, VehicleConfig
 
     v = Vehicle(VehicleConfig(url="udpin:127.0.0.1:0", time_scale=5.0, hover_wobble_deg=0.5, seed=3)).start()
@@ -272,7 +273,7 @@ def test_the_vehicle_reports_its_attitude_over_mavlink():
     try:
         client.recv("HEARTBEAT")
         assert client.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mavlink.MAV_RESULT_ACCEPTED
-        assert client.command(mavlink.MAV_CMD_NAV_TAKEOFF, *[NAN] * 7) == mavlink.MAV_RESULT_ACCEPTED
+        assert client.command(mavlink.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 7) == mavlink.MAV_RESULT_ACCEPTED
         client.recv("GLOBAL_POSITION_INT", timeout=10, cond=lambda m: m.relative_alt > 2_000)  # MIS_TAKEOFF_ALT, 2.5 m
         msgs = [client.recv("ATTITUDE") for _ in range(20)]
         rolls = [m.roll for m in msgs]
@@ -387,7 +388,7 @@ def test_a_gimballed_camera_stays_level_and_a_body_fixed_one_tilts_with_the_vehi
 
 def test_the_readme_documents_every_camera_key_with_its_default():
     from pathlib import Path
-    readme = (Path(__file__).resolve().parents[1] / "docs" / "camera-and-perception.md").read_text()
+    readme = (Path(__file__).resolve().parents[2] / "docs" / "camera-and-perception.md").read_text()
     for key, (default, _) in KEYS.items():
         row = next((line for line in readme.splitlines() if line.startswith(f"| `{key}` |")), None)
         assert row is not None, f"docs/camera-and-perception.md has no row for --camera key {key}"

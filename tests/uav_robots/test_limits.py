@@ -24,7 +24,7 @@ from scenarios.limits import MAX_FLEET, MAX_FLOOR_CELLS, check_floor
 from scenarios.maps import NAMED, resolve_map
 from uav_robots.secure.fleet import MANIFEST, new_fleet, read_fleet_dir
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 FUZZ = settings(max_examples=200, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 

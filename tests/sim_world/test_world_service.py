@@ -18,25 +18,12 @@ from protocol.codec import decode, encode
 from protocol.keys import Keys
 from protocol.messages import (CameraFrame, CameraRequest, MissionEnd, MoveRequest, MoveResult, Record, RecordRequest,
                                WorldInfo, WorldInfoRequest)
-from protocol.transport import MemoryBus, MemoryTransport, ZenohTransport
+from protocol.transport import ZenohTransport
 from sim_world.config import WorldConfig
 from sim_world.service import World
 from scenes import open_map
 
-REPO = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture
-def mem_world(tmp_path):
-    m, s = open_map(tmp_path, [(0, 0), (1, 0), (5, 5)], [(7, 0), (7, 1), (5, 4)])
-    bus = MemoryBus()
-    world = World(WorldConfig(fleet="t", map=m, scen=s, robots=3, mavlink=None, move_batch_timeout_s=0.4),
-                  MemoryTransport(bus))
-    world.start()
-    client = MemoryTransport(bus)
-    yield world, client
-    client.close()
-    world.close()
+REPO = Path(__file__).resolve().parents[2]
 
 
 def ask(client, world, robot, tick, frm, to, timeout=3.0):

@@ -20,7 +20,7 @@ from scenes import open_map
 from uav_agent.fleet import FleetLink
 from uav_robots.bench.lockstep import lanes
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 T = 5.0
 ROWS = 3
 PATHS = {r: [(x, r) for x in range(5)] for r in range(ROWS)}

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from uav_robots.bench.cli import BENCHMARKS, add_bench_parser, benchmark, run
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def test_every_benchmark_in_the_table_is_a_subcommand_run_by_its_module():

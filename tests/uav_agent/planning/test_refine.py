@@ -13,7 +13,7 @@ from uav_agent.planning.mapf.refine import improve
 from uav_agent.planning.types import Problem, sum_of_costs
 from uav_agent.planning.validator import check
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 MAP = "warehouse-10-20-10-2-1"
 
 

@@ -1,7 +1,7 @@
 """Drone-in-the-loop against a real flight stack: ArduCopter SITL, when `UAV_ROBOTS_ARDUPILOT_SITL` names
 its binary (tests/ardupilot_sitl.py says how to give one; skipped, saying why, otherwise).
 
-The same checks that tests/test_flight.py, test_autopilot_pose.py and test_failsafes.py make against our
+The same checks that tests/uav_agent/test_flight.py, test_autopilot_pose.py and test_failsafes.py make against our
 vehicle in CI: MAVSDK flies it (streams asked for, an arm refused while its estimator settles, GUIDED,
 arming again after a landing), a whole `uav-robots run --autopilot --autopilot-pose` completes with the
 images rendered from its telemetry, and its own failsafes (a critical battery, a ground station's

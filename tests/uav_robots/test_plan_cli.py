@@ -17,7 +17,7 @@ from uav_agent.planning.compile import cache
 from uav_agent.planning.plan_io import read_plan
 from uav_robots import cli
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def run_cli(*argv: str, timeout: float = 120.0) -> subprocess.CompletedProcess:

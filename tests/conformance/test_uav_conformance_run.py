@@ -11,7 +11,7 @@ import pytest
 from conformance.suite_files import suite_files
 from suites import outcome, run_suite
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 SUITE = [str(path) for path in suite_files("uav")]
 
 
@@ -37,4 +37,4 @@ def test_a_uav_that_never_comes_up_fails_the_suite():
 
 
 # UAVs with one rule broken each (a tick barrier left out, every Done believed, ...) are
-# conformance.mutants, run against the rules' tests by tests/test_conformance_mutants.py.
+# conformance.mutants, run against the rules' tests by tests/conformance/test_conformance_mutants.py.

@@ -22,7 +22,7 @@ from protocol.transport import MemoryBus, MemoryTransport, ZenohTransport
 
 cells = st.tuples(st.integers(0, 10_000), st.integers(0, 10_000))
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 @given(robot=st.integers(0, 10**6), pid=st.text(max_size=20), path=st.lists(cells, min_size=1, max_size=50),

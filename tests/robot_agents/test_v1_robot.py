@@ -22,7 +22,7 @@ from conformance.rules import newer_rules
 from conformance.suite_files import suite_files
 from suites import outcome, run_suite
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 FROZEN = REPO / "tests" / "v1_robot"
 DIGEST = "265821862fe3a407e49b45b52c19fcf018a348f7ecc6864e8aac131177cdd11c"
 V1 = f"{shlex.quote(sys.executable)} tests/v1_robot/run.py"

@@ -19,7 +19,7 @@ from sim_world.config import WorldConfig
 from sim_world.service import World
 from scenes import open_map, robot_process
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 T = 5.0
 
 

@@ -2,7 +2,7 @@
 images taken elsewhere or leaning set aside for a retake, a silent or garbled camera named.
 
 The whole path over Zenoh with the world's camera and a flying vehicle is exercised by
-every mission test (tests/test_end_to_end.py); here the camera is a small queryable on
+every mission test (tests/uav_robots/test_end_to_end.py); here the camera is a small queryable on
 the in-memory transport, so each case can be made to happen."""
 from __future__ import annotations
 

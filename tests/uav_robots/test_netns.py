@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PORT, MAVLINK_PORT = 7447, 14550
 UAV_FOR_WORLD, WORLD_ADDR = "10.231.1.1", "10.231.1.2"
 UAV_FOR_ROBOTS, ROBOTS_ADDR = "10.231.2.1", "10.231.2.2"

@@ -16,7 +16,7 @@ from uav_agent.planning.validator import validate
 
 CLI = [sys.executable, "-m", "uav_robots"]
 # The perfect camera, for the tests whose subject is not the camera: the default (realistic) one is
-# exercised by test_default_mission, the 450 paper setting and tests/test_mission_perception.py.
+# exercised by test_default_mission, the 450 paper setting and tests/uav_agent/mission/test_mission_perception.py.
 IDEAL = ["--camera", "ideal"]
 
 

@@ -12,7 +12,7 @@ from protocol.codec import decode
 from protocol.config import DEFAULT_ENDPOINT, client_config, hub_config
 from protocol.messages import Message
 
-DOC = (Path(__file__).resolve().parents[1] / "docs" / "protocol.md").read_text()
+DOC = (Path(__file__).resolve().parents[2] / "docs" / "protocol.md").read_text()
 
 
 def _blocks(lang: str) -> list[str]:
