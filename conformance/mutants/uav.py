@@ -17,7 +17,7 @@ def patches() -> dict[str, Patch]:
     from protocol.errors import MissionError
     from protocol.messages import MissionEnd, MissionStatus, StateBatch
     from protocol.transport import Handle
-    from uav_agent import preview, recovery, watch
+    from uav_agent import preview, recovery, watch, world_query
     from uav_agent.fleet import FleetLink
     from uav_agent.flight import Flight
     from uav_agent.mission import context, dispatch, execute, finish, repair, verify
@@ -31,7 +31,7 @@ def patches() -> dict[str, Patch]:
                                                       FleetLink._decode, FleetLink.wait_until)
     take_state, on_robot_alive, wait_tick, recover = (FleetLink._take_state, FleetLink._on_robot_alive,
                                                       FleetLink.wait_tick, repair.recover)
-    verified, query, replan, pose_feed_init = verify.run, context.query, recovery.replan, PoseFeed.__init__
+    verified, query, replan, pose_feed_init = verify.run, world_query.query, recovery.replan, PoseFeed.__init__
     flown: dict[str, MissionContext] = {}   # the mission being flown, for patches of the fleet's link that need its plan
 
     def no_uav_token(cfg):
@@ -241,7 +241,7 @@ def patches() -> dict[str, Patch]:
         "U26": setattr_(verify, "run", needs_done),
         "U27": setattr_(watch, "FOREIGN_MODES", set()),
         "U28": setattr_(FleetLink, "wait_until", forever_if("no world")),
-        "U29": setattr_(context, "query", until_it_answers),
+        "U29": setattr_(world_query, "query", until_it_answers),
         "U30": setattr_(FleetLink, "wait_until", forever_if("came alive")),
         "U31": setattr_(dispatch, "send", unacked_repair_is_fatal),
         "U32": setattr_(context, "MissionStatus", no_executing_status),

@@ -3,12 +3,12 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
-from protocol.errors import MissionError, ProtocolError
 from protocol.keys import Keys
 from protocol.messages import CameraFrame, CameraRequest, WorldInfoRequest
-from protocol.codec import decode, encode
+from protocol.codec import encode
 from protocol.transport import PendingRequest, Transport
 
+from .. import world_query
 from .base import CAMERA_TIMEOUT_S, QUERY_TIMEOUT_S, CameraSource
 
 
@@ -20,14 +20,9 @@ class ZenohSource(CameraSource):
         self.transport, self.keys, self._next = transport, keys, next_seq
 
     def frame(self, calibration_only: bool = False) -> CameraFrame:
-        replies = self.transport.request(self.keys.camera, encode(CameraRequest(calibration_only=calibration_only,
-                                                                                seq=self._next())), CAMERA_TIMEOUT_S)
-        if not replies:
-            raise MissionError(f"no answer from the world's camera within {CAMERA_TIMEOUT_S:g} s")
-        try:
-            return decode(replies[0], CameraFrame)
-        except ProtocolError as exc:
-            raise MissionError(f"the world's camera answered garbage: {exc}") from None
+        return world_query.query(self.transport, self.keys.camera,
+                                 CameraRequest(calibration_only=calibration_only, seq=self._next()), CameraFrame,
+                                 "camera", CAMERA_TIMEOUT_S)
 
     def start(self, roi: Any = None) -> PendingRequest:
         area = {} if roi is None else {"roi_x": roi.x, "roi_y": roi.y, "roi_width": roi.width,

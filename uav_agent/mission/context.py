@@ -6,10 +6,10 @@ import json
 import math
 from typing import TYPE_CHECKING, Any
 
-from protocol.errors import MissionError, ProtocolError
+from protocol.errors import MissionError
 from protocol.keys import Keys
 from protocol.messages import CameraFrame, MissionEvent, MissionStatus, WorldInfo
-from protocol.codec import decode, encode
+from protocol.codec import encode
 from protocol.transport import Transport, open_session, zenoh_config
 
 from ..camera_source.base import CameraSource
@@ -26,7 +26,6 @@ if TYPE_CHECKING:
     from ..shots import Shots
     from ..watch import VehicleWatch
 
-QUERY_TIMEOUT_S = 10.0
 CAMERA_TIMEOUT_S = 30.0    # a 12 MP image rendered on a loaded machine, or sent over a slow link
 PERCEPTION_WORKERS = 2     # survey images measured at once (OpenCV releases the GIL): a second core's worth
 # An image whose own published attitude leans further is taken again: beyond the level the shutter
@@ -48,17 +47,6 @@ def access_control(cfg: MissionConfig) -> bool:
     from protocol.config import config_from_file
     return bool(json.loads(zenoh_config(config_from_file(cfg.zenoh_config)).get_json("access_control/enabled")
                            or "false"))
-
-
-def query(transport: Transport, key: str, request: Any, reply_type: type, what: str,
-          timeout_s: float = QUERY_TIMEOUT_S) -> Any:
-    replies = transport.request(key, encode(request), timeout_s)
-    if not replies:
-        raise MissionError(f"no answer from the world's {what} within {timeout_s:g} s")
-    try:
-        return decode(replies[0], reply_type)
-    except ProtocolError as exc:
-        raise MissionError(f"the world's {what} answered garbage: {exc}") from None
 
 
 class MissionContext:

@@ -8,15 +8,16 @@ from protocol.errors import MissionError
 from protocol.messages import Record, RecordRequest
 
 from .. import report as report_files
-from . import context, verify
+from .. import world_query
+from . import verify
 from .context import MissionContext
 
 
-def record(ctx: MissionContext, timeout_s: float = context.QUERY_TIMEOUT_S) -> Record | None:
+def record(ctx: MissionContext, timeout_s: float = world_query.QUERY_TIMEOUT_S) -> Record | None:
     if ctx.fleet.world_gone:
         return None
     try:
-        return context.query(ctx.transport, ctx.keys.record, RecordRequest(seq=ctx.next_seq()), Record, "record",
+        return world_query.query(ctx.transport, ctx.keys.record, RecordRequest(seq=ctx.next_seq()), Record, "record",
                              timeout_s)
     except MissionError:
         return None
@@ -107,7 +108,7 @@ def finish_report(ctx: MissionContext) -> None:
                                    ctx.plans.ids)
 
 
-def abort_report(ctx: MissionContext, reason: str, record_timeout_s: float = context.QUERY_TIMEOUT_S) -> None:
+def abort_report(ctx: MissionContext, reason: str, record_timeout_s: float = world_query.QUERY_TIMEOUT_S) -> None:
     """An aborted mission still leaves its report: completed false, the reason, the events, and the
     robots an image showed on their goals after their last move (verified, whatever came after)."""
     a, plans = ctx.arrivals, ctx.plans

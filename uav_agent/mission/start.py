@@ -10,6 +10,7 @@ from protocol.messages import WorldInfo, WorldInfoRequest
 from ..camera_source import open_camera_source
 from ..pose_feed import PoseFeed
 from ..watch import VehicleWatch
+from .. import world_query
 from . import context, looks, plan
 from .context import MissionContext
 
@@ -28,7 +29,7 @@ def connect(ctx: MissionContext) -> None:
     ctx.status("connecting", message="waiting for the world on Zenoh")
     ctx.fleet.wait_until(lambda: ctx.fleet.world_alive, cfg.startup_timeout_s,
                          lambda: f"no world on fleet {cfg.fleet} within {cfg.startup_timeout_s:g} s")
-    info = context.query(ctx.transport, ctx.keys.world_info, WorldInfoRequest(seq=ctx.next_seq()), WorldInfo, "info")
+    info = world_query.query(ctx.transport, ctx.keys.world_info, WorldInfoRequest(seq=ctx.next_seq()), WorldInfo, "info")
     check_floor(info)
     ctx.info = info
     ctx.landmarks = Landmarks.from_info(info)
