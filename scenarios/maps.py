@@ -56,6 +56,9 @@ def random_map(width: int, height: int, density: float, seed: int, check: SizeCh
     return free.reshape(height, width)
 
 
+# `--map`'s help, for every command that takes one.
+MAP_HELP = ("a .map file (or the name of a shipped MovingAI map), warehouse-small, warehouse-450, "
+            "'warehouse:blocks_x=..,blocks_y=..' or 'random:width=..,height=..,density=..'")
 NAMED = {
     "warehouse-small": dict(blocks_x=3, blocks_y=4, shelf_w=4, shelf_h=2, aisle=2, dock=3, margin=1),
     "warehouse-450": dict(blocks_x=33, blocks_y=112),

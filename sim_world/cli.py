@@ -28,9 +28,9 @@ def add_world_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def add_world_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--map", default="warehouse-small",
-                   help="a .map file, warehouse-small, warehouse-450, 'warehouse:blocks_x=..,blocks_y=..' "
-                        "or 'random:width=..,height=..,density=..'")
+    from scenarios.maps import MAP_HELP
+
+    p.add_argument("--map", default="warehouse-small", help=MAP_HELP)
     p.add_argument("--robots", type=int, default=8, help="number of robots (and goals)")
     p.add_argument("--seed", type=int, default=0, help="seed of the placement of robots and goals")
     p.add_argument("--scen", default=None, metavar="FILE", help="take starts and goals from a MovingAI .scen")

@@ -14,6 +14,8 @@ from .common.arguments import REFINE_HELP, fail, positive_float, positive_int, s
 # ---------------------------------------------------------------------------- plan
 
 def add_plan_parser(subparsers) -> argparse.ArgumentParser:
+    from scenarios.maps import MAP_HELP
+
     from uav_agent.planning.assignment import ASSIGNERS
     from uav_agent.planning.registry import DEFAULT_PLANNER, PLANNERS
     p = subparsers.add_parser(
@@ -22,8 +24,7 @@ def add_plan_parser(subparsers) -> argparse.ArgumentParser:
                     "plan file out. With --scen the scenario's start-goal pairs are kept unless --assign "
                     "says otherwise; with --robots N --seed S robots and goals are placed at random and "
                     "assigned (optimal by default).")
-    p.add_argument("--map", required=True, help="a MovingAI .map file or a map spec (warehouse-small, "
-                   "warehouse-450, warehouse:blocks_x=..,blocks_y=.., random:width=..,height=..,density=..)")
+    p.add_argument("--map", required=True, help=MAP_HELP)
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--scen", help="a MovingAI .scen file: robots start and goal cells; with a shipped "
                                     "MovingAI map's name as --map, also its scenario's name (random-1, even-3)")

@@ -15,13 +15,12 @@ from ..view.arguments import add_view_arguments
 
 
 def add_run_parser(sub) -> None:
+    from scenarios.maps import MAP_HELP
     from sim_world.vehicle_cli import add_ground_station_arguments
     from uav_agent.cli import add_planning_arguments
 
     p = sub.add_parser("run", help="run a complete mission: world, UAV and robot processes")
-    p.add_argument("--map", default="warehouse-small",
-                   help="a .map file, warehouse-small, warehouse-450, 'warehouse:blocks_x=..,blocks_y=..' "
-                        "or 'random:width=..,height=..,density=..' (default: warehouse-small)")
+    p.add_argument("--map", default="warehouse-small", help=f"{MAP_HELP} (default: warehouse-small)")
     p.add_argument("--robots", type=int, default=8, help="number of robots (default 8)")
     p.add_argument("--seed", type=int, default=0, help="seed of the placement (and random maps)")
     p.add_argument("--out", help="directory for report.json, overhead.png, paths.png, replay.gif, mission.mcap, "
