@@ -55,6 +55,7 @@ def test_every_example_is_listed_in_the_readme_and_names_no_path_of_this_machine
         assert str(REPO) not in text and not re.search(r"/(root|home|tmp)/", text), f"{path.name}: an absolute path"
 
 
+@pytest.mark.process
 def test_plan_movingai_plans_and_validates_a_shipped_instance():
     out = succeeded(example("plan_movingai.py"))
     assert "warehouse-10-20-10-2-1 (161x63), scenario random-1: 50 agents, planner lacam" in out
@@ -65,6 +66,7 @@ def test_plan_movingai_plans_and_validates_a_shipped_instance():
     assert 0 < makespan <= soc and soc >= lower_bound > 0
 
 
+@pytest.mark.process
 def test_plan_movingai_says_in_one_line_what_is_wrong():
     result = example("plan_movingai.py", "--scen", "random-99")
     assert result.returncode != 0
@@ -73,6 +75,7 @@ def test_plan_movingai_says_in_one_line_what_is_wrong():
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_the_minimal_robot_keeps_the_core_rules_of_the_conformance_suite():
     cmd = f"{shlex.quote(sys.executable)} examples/minimal_robot.py --id {{id}} --fleet {{fleet}} --connect {{endpoint}}"
     out = succeeded(run([sys.executable, "-m", "uav_robots", "conformance", "robot", "--cmd", cmd, "-k", CORE_RULES],
@@ -83,6 +86,7 @@ def test_the_minimal_robot_keeps_the_core_rules_of_the_conformance_suite():
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_minimal_robots_complete_a_real_mission_in_place_of_ours():
     out = succeeded(example("minimal_robot.py", timeout=150))
     assert re.search(r"^mission COMPLETED: 3/3 robots verified on their goals by the camera in \d+ ticks, collisions 0$",
@@ -91,6 +95,7 @@ def test_minimal_robots_complete_a_real_mission_in_place_of_ours():
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_fly_vehicle_mavsdk_takes_off_flies_and_lands():
     out = succeeded(example("fly_vehicle_mavsdk.py"))
     assert re.search(r"^connected: autopilot 1 \(PX4\), home 47\.397742 8\.545594", out, re.M), out
@@ -104,6 +109,7 @@ def test_fly_vehicle_mavsdk_takes_off_flies_and_lands():
     assert "MAVSDK version" not in out, "MAVSDK's own log lines are not the example's output"
 
 
+@pytest.mark.process
 def test_new_planner_plans_what_the_validator_accepts_and_shortest_paths_do_not():
     out = succeeded(example("new_planner.py"))
     assert "random-32-32-20, scenario random-1: 20 robots, 4-connected" in out
@@ -114,6 +120,7 @@ def test_new_planner_plans_what_the_validator_accepts_and_shortest_paths_do_not(
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_observer_beside_a_run_sees_its_ticks_states_flags_and_end():
     mission = subprocess.Popen([sys.executable, "-m", "uav_robots", "run", "--robots", "3", "--camera", "ideal",
                                 "--timeout", "120"], cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
@@ -145,6 +152,7 @@ def test_observer_beside_a_run_sees_its_ticks_states_flags_and_end():
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_observer_alone_starts_a_mission_and_watches_it():
     out = succeeded(example("observe_fleet.py", timeout=150))
     saw = re.search(r"^observer: saw (\d+) ticks, (\d+) robot states, 3 done flags$", out, re.M)

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.process   # every test here starts a process
+
 REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("protocol", "scenarios", "sim_world", "robot_agents", "uav_agent", "conformance", "uav_robots")
 

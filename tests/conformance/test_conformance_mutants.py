@@ -107,6 +107,7 @@ def test_the_rule_table_in_the_docs_is_current():
 
 @pytest.mark.timeout(1500)   # the first test waits for every mutant's run (the module fixture)
 @pytest.mark.parametrize("rule", [r.id for r in RULES])
+@pytest.mark.process
 def test_the_suite_catches_the_mutant(verdicts, rule):
     v = verdicts[rule]
     assert v.code == 1, f"mutant {rule} was not caught (pytest exit {v.code})\n{v.tail}"
@@ -114,12 +115,14 @@ def test_the_suite_catches_the_mutant(verdicts, rule):
     assert v.failed & mapped, f"mutant {rule}: none of the tests mapped to it failed\n{v.tail}"
 
 
+@pytest.mark.process
 def test_the_mutant_wrapper_unbroken_passes_the_robot_suite():
     """The control: the wrapper itself changes nothing, so each failure above is its rule's."""
     v = _suite("robot", "none", ())
     assert v.code == 0 and not v.failed, v.tail
 
 
+@pytest.mark.process
 def test_an_unknown_rule_is_a_usage_error():
     run = subprocess.run([sys.executable, "-m", "conformance.mutants", "robot", "--break", "R999", "--id", "1"],
                          cwd=REPO, capture_output=True, text=True, timeout=60)

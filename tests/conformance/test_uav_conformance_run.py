@@ -11,6 +11,8 @@ import pytest
 from conformance.suite_files import suite_files
 from suites import outcome, run_suite
 
+pytestmark = pytest.mark.process   # every test here starts a process
+
 REPO = Path(__file__).resolve().parents[2]
 SUITE = [str(path) for path in suite_files("uav")]
 

@@ -257,6 +257,7 @@ def test_a_command_leaves_its_heap_frozen_for_the_exit_and_a_caller_untouched(mo
         signal.signal(signal.SIGTERM, term)
 
 
+@pytest.mark.process
 def test_warning_lines_are_throttled_printable_and_their_tail_said_at_exit():
     """A flood of bad input is one line a second; what a stranger sent is shown escaped, on one line;
     the lines held back after the last one shown are counted at the process's exit (they were lost)."""

@@ -98,6 +98,7 @@ def _uav_robots(argv: list[str], timeout: float) -> subprocess.CompletedProcess:
                           timeout=timeout)
 
 
+@pytest.mark.process
 def test_a_bad_spec_file_is_one_line_and_exit_2(tmp_path):
     (tmp_path / "run.json").write_text(json.dumps({"format": "uav-robots-run/1", "robots": "eight"}))
     res = _uav_robots(["run", "--spec", str(tmp_path / "run.json")], 60)
@@ -106,6 +107,7 @@ def test_a_bad_spec_file_is_one_line_and_exit_2(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_a_run_is_repeated_from_its_spec(tmp_path):
     """`run --spec OUT/run.json` repeats the run: the same spec (seed, faults, planner), the same plan,
     and report.json carries the spec; a flag given beside --spec still wins."""

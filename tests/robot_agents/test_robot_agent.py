@@ -181,6 +181,7 @@ def test_pool_leaves_when_the_uav_goes_away(capsys):
         uav.close()
 
 
+@pytest.mark.process
 def test_pool_process_over_zenoh_with_a_conflict(tmp_path):
     """A pool of 4 robot processes' worth in one process; robots 2 and 3 are sent head-on into each other."""
     paths = dict(PATHS)
@@ -212,6 +213,7 @@ def test_pool_process_over_zenoh_with_a_conflict(tmp_path):
             world.close()
 
 
+@pytest.mark.process
 def test_robot_cli_errors_are_one_line():
     for args in (["--fleet", "f"], ["--fleet", "f", "--ids", "x-y"], ["--fleet", "no good", "--id", "1"]):
         run = subprocess.run([sys.executable, "-m", "robot_agents", *args], cwd=REPO, capture_output=True,
@@ -238,6 +240,7 @@ def _zenoh_threads(pid: int) -> set[str]:
     ("0-1", {}, False),                        # a pool keeps Zenoh's runtimes
     ("0", {"ZENOH_RUNTIME": "()"}, False),     # the user's setting wins
 ])
+@pytest.mark.process
 def test_a_lone_robot_runs_one_zenoh_runtime(ids, env, lean):
     import os
 

@@ -43,6 +43,7 @@ def test_the_frozen_robot_is_unchanged():
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_a_protocol_1_robot_passes_the_rules_of_protocol_1():
     run = _suite()
     out = run.stdout
@@ -55,6 +56,7 @@ def test_a_protocol_1_robot_passes_the_rules_of_protocol_1():
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_held_to_protocol_2_it_fails_the_rules_that_changed():
     """The four rules whose meaning changed since protocol 1: not held to them, it passes; held, it fails."""
     changed = ["test_moves_are_asked_on_the_key_naming_the_robot",                    # R35
@@ -75,6 +77,7 @@ def _free_port(kind: int = socket.SOCK_STREAM) -> int:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("secured", [False, True], ids=["open", "secured"])
+@pytest.mark.process
 def test_a_uav_serves_protocol_1_robots_and_refuses_them_on_a_secured_fleet(tmp_path, secured):
     """Today's UAV and world with a pool of frozen protocol 1 robots: served on an open fleet (the
     mission completes; one event per robot says what it will not get), refused in one line under

@@ -165,6 +165,7 @@ def _stop(proc: subprocess.Popen) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_a_whole_run_flies_an_external_autopilot_and_renders_from_its_pose(tmp_path):
     """`uav-robots vehicle` started on its own, as a SITL binary; `uav-robots run --autopilot
     --autopilot-pose` starts no vehicle, the UAV flies that one and the world's camera follows it over
@@ -207,6 +208,7 @@ def test_a_whole_run_flies_an_external_autopilot_and_renders_from_its_pose(tmp_p
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_an_indoor_vehicle_without_gps_flies_the_mission_in_its_local_frame(tmp_path):
     """`--vehicle-preset indoor`: no GPS, no home, no global position (PX4 on vision or optical flow). The
     UAV finds no home, flies the autopilot's local frame with offboard position setpoints, and the world

@@ -323,6 +323,7 @@ def test_bad_camera_values_are_one_line_errors(text, words):
 
 
 @pytest.mark.parametrize("command", [["uav_robots", "run"], ["sim_world", "--mavlink", "none"]])
+@pytest.mark.process
 def test_bad_camera_values_stop_run_and_the_world_before_anything_starts(command):
     run = subprocess.run([sys.executable, "-m", *command, "--camera", "realistic,jpeg_quality=300"],
                          capture_output=True, text=True, timeout=60)

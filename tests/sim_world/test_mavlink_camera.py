@@ -235,6 +235,7 @@ def test_the_video_stream_plays_and_gives_frames_with_the_telemetry_pose(tmp_pat
     (["-m", "uav_agent", "--camera-source", "pigeon"], "--camera-source"),
     (["-m", "uav_agent", "--camera-source", "mavlink", "--camera-calibration", "/nonexistent/cal.json"], "calibration"),
 ])
+@pytest.mark.process
 def test_bad_camera_options_are_one_line_and_exit_2(argv, needle):
     res = subprocess.run([sys.executable, *argv], capture_output=True, text=True, timeout=60)
     assert res.returncode == 2, res.stderr
@@ -243,6 +244,7 @@ def test_bad_camera_options_are_one_line_and_exit_2(argv, needle):
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_a_whole_mission_with_the_mavlink_camera_source(tmp_path):
     """The UAV triggers every image over MAVLink and fetches it over HTTP, on the default floor and camera."""
     res = subprocess.run([sys.executable, "-m", "uav_robots", "run", "--camera-source", "mavlink", "--out", str(tmp_path),

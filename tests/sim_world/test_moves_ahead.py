@@ -41,6 +41,7 @@ def _logs(tmp: Path) -> str:
 
 
 @pytest.mark.parametrize("batch_states", [False, True])
+@pytest.mark.process
 def test_a_mixed_fleet_with_a_replan_between_ticks(tmp_path, batch_states):
     """Lone robots and a pool moving ahead, a lone robot and a pool asking: one world judges them all;
     a new plan that arrives between ticks replaces the move a robot already put ahead."""
@@ -82,6 +83,7 @@ def test_a_mixed_fleet_with_a_replan_between_ticks(tmp_path, batch_states):
             kids.stop()
 
 
+@pytest.mark.process
 def test_a_tick_for_another_plan_makes_an_ahead_robot_stay(tmp_path):
     """A robot that missed the Tick's plan: its move put ahead under its own plan is judged a stay."""
     lane, keys, endpoint, kids = _start(2, [([0], "ahead"), ([1], "ahead")], 6, tmp_path)

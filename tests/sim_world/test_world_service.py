@@ -168,6 +168,7 @@ def test_a_calibration_only_request_gets_the_frame_without_an_image(mem_world):
     assert abs(info.down_m - frame.down_m) < 1.0 and info.seq != frame.seq
 
 
+@pytest.mark.process
 def test_bad_config_is_one_line_error(tmp_path):
     run = subprocess.run([sys.executable, "-m", "sim_world", "--fleet", "f", "--map", "nosuch.map",
                           "--mavlink", "none"], cwd=REPO, capture_output=True, text=True, timeout=30)
@@ -194,6 +195,7 @@ def wait_alive(hub: Hub, key: str, timeout: float = 15.0) -> bool:
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_world_process_serves_and_leaves_after_the_uav():
     with Hub() as hub:
         uav = FakeUav(hub.transport, hub.keys)
@@ -216,6 +218,7 @@ def test_world_process_serves_and_leaves_after_the_uav():
             uav.close()
 
 
+@pytest.mark.process
 def test_world_process_stops_on_sigterm_and_on_a_lone_mission_end():
     with Hub() as hub:
         proc = start_world(hub, "--mavlink", "none")
@@ -236,6 +239,7 @@ def test_world_process_stops_on_sigterm_and_on_a_lone_mission_end():
             stop_process(proc)
 
 
+@pytest.mark.process
 def test_world_with_its_vehicle_over_zenoh():
     """The camera follows the vehicle: on the ground the lens sits at its mount height."""
     with Hub() as hub:
@@ -276,6 +280,7 @@ def test_world_in_process_on_zenoh_batches_two_clients(tmp_path):
             world.close()
 
 
+@pytest.mark.process
 def test_world_leaves_when_the_uav_vanishes_mid_mission():
     with Hub() as hub:
         uav = FakeUav(hub.transport, hub.keys)
@@ -298,6 +303,7 @@ def _world_alone() -> subprocess.Popen:
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_the_world_alone_is_a_sitl_and_stops_within_a_second():
     """No arguments: its own router and the default fleet, the vehicle on PX4 SITL's usual port."""
     from pymavlink import mavutil
@@ -321,6 +327,7 @@ def test_the_world_alone_is_a_sitl_and_stops_within_a_second():
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_the_world_stops_promptly_while_it_waits_for_a_router():
     proc = subprocess.Popen([sys.executable, "-m", "sim_world", "--connect", "tcp/127.0.0.1:9", "--mavlink", "none"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

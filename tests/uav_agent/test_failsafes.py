@@ -62,6 +62,7 @@ def _commanded(later: list[str]) -> list[str]:
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_a_return_home_commanded_during_the_climb_is_noticed_at_once_and_never_overridden(tmp_path, udp_port):
     # The issue saw an RTL from a ground station seen in 0.1 s, then the agent wait 120 s for its pose.
     def rtl(gcs) -> float:   # once the vehicle climbs through 3 m (PX4 denies a return on the ground)
@@ -86,6 +87,7 @@ def test_a_return_home_commanded_during_the_climb_is_noticed_at_once_and_never_o
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_a_critical_battery_in_the_survey_returns_the_vehicle_and_names_the_battery(tmp_path, udp_port):
     def drain(gcs):   # a far smaller pack, drained far faster: critical within a simulated second or two
         for name, value in ((b"SIM_BAT_HOVER_A", 1000.0), (b"BAT1_CAPACITY", 900.0)):

@@ -7,6 +7,8 @@ import sys
 
 import pytest
 
+pytestmark = pytest.mark.process   # every test here starts a process
+
 BENCH_TIMEOUT_S = 300
 
 

@@ -14,6 +14,8 @@ from uav_agent.report import load_report
 from uav_agent.planning.types import Problem
 from uav_agent.planning.validator import validate
 
+pytestmark = pytest.mark.process   # every test here starts a process
+
 CLI = [sys.executable, "-m", "uav_robots"]
 # The perfect camera, for the tests whose subject is not the camera: the default (realistic) one is
 # exercised by test_default_mission, the 450 paper setting and tests/uav_agent/mission/test_mission_perception.py.

@@ -22,6 +22,7 @@ def launcher(tmp_path, monkeypatch):
     lau.stop(graceful=False)
 
 
+@pytest.mark.process
 def test_the_robots_start_once_the_uav_flies(launcher):
     lau, uav, started = launcher
     t0 = time.monotonic()
@@ -30,6 +31,7 @@ def test_the_robots_start_once_the_uav_flies(launcher):
     assert len(started) == 1 and 0.3 <= started[0] - t0 < 1.0
 
 
+@pytest.mark.process
 def test_the_robots_start_at_the_latest_after_the_bound(launcher):
     lau, uav, started = launcher
     t0 = time.monotonic()

@@ -70,6 +70,7 @@ def huge_map(tmp_path_factory) -> Path:
 
 # ------------------------------------------------------------------ up front, in one line
 
+@pytest.mark.process
 def test_a_fleet_larger_than_the_marker_dictionary_is_refused_before_anything_starts():
     # It was refused only after every process had started, as "no answer from the world's camera within 30 s".
     # warehouse-450 has room for them: nothing else would stop these runs.
@@ -93,6 +94,7 @@ def test_the_fleet_limit_is_the_robot_markers_dictionary_and_landmarks_have_thei
     assert LANDMARK_FAMILY != MARKER_FAMILY   # landmark ids never read as robots
 
 
+@pytest.mark.process
 def test_a_floor_larger_than_a_mission_covers_is_refused_from_its_header(huge_map):
     words = ("4200x4200 floor", f"{MAX_FLOOR_CELLS:,}")
     _one_line(_command(["run", "--map", str(huge_map)]), *words)
@@ -135,10 +137,12 @@ def test_a_huge_header_is_refused_without_reading_the_rows(tmp_path):
     (["run", "--map", "warehouse:blocks_x=3,blocks_y=3,width=9"], ["a warehouse takes"]),
     (["world", "--seed", "-1", "--mavlink", "none"], ["seed must be a whole number"]),
 ])
+@pytest.mark.process
 def test_bad_map_specs_are_one_line(argv, words):
     _one_line(_command(argv), *words)
 
 
+@pytest.mark.process
 def test_out_under_a_file_is_one_line(tmp_path):
     f = tmp_path / "report"
     f.write_text("x")
@@ -427,6 +431,7 @@ def test_an_oversize_payload_is_counted_where_rejects_are():
         robot.close()
 
 
+@pytest.mark.process
 def test_a_robot_process_drops_and_reports_an_oversize_plan_and_serves_the_next():
     """A real robot over a real Zenoh router: a plan with a 2 MB unknown field (under the old 8 MiB
     limit, so it was acknowledged) is dropped, said once on stderr, and the next plan is served."""

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.process   # every test here starts a process
+
 REPO = Path(__file__).resolve().parents[2]
 PORT, MAVLINK_PORT = 7447, 14550
 UAV_FOR_WORLD, WORLD_ADDR = "10.231.1.1", "10.231.1.2"

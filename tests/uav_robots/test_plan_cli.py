@@ -39,6 +39,7 @@ def small_files(tmp_path):
     return tmp_path, free, pl
 
 
+@pytest.mark.process
 def test_plan_subprocess_end_to_end(small_files):
     d, free, pl = small_files
     out = d / "plan.json"
@@ -51,6 +52,7 @@ def test_plan_subprocess_end_to_end(small_files):
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_plan_on_a_fresh_clone_does_not_wait_for_the_compile(tmp_path):
     """An empty numba cache (and so no build): the planners run interpreted and give the plan the
     compiled kernels give, 50 robots on the 450 warehouse, without compiling first."""
@@ -64,6 +66,7 @@ def test_plan_on_a_fresh_clone_does_not_wait_for_the_compile(tmp_path):
     assert a.paths == b.paths and a.metrics == b.metrics
 
 
+@pytest.mark.process
 def test_plan_subprocess_bad_map_exits_2(tmp_path):
     bad = tmp_path / "bad.map"
     bad.write_text("type octile\nheight 3\nwidth 4\nmap\n....\n..\n")
@@ -168,6 +171,7 @@ def paper_data(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_bench_paper_subprocess(paper_data, tmp_path):
     out = tmp_path / "out"
     p = run_cli("bench", "paper", "--sizes", "3,5", "--repeat", "1", "--data", str(paper_data),
@@ -185,6 +189,7 @@ def test_bench_paper_subprocess(paper_data, tmp_path):
     assert md.splitlines()[2] in p.stdout
 
 
+@pytest.mark.process
 def test_bench_paper_timeout_skips_larger_sizes(paper_data, tmp_path):
     out = tmp_path / "out"
     p = run_cli("bench", "paper", "--sizes", "3,5", "--repeat", "2", "--pipelines", "default",
@@ -196,6 +201,7 @@ def test_bench_paper_timeout_skips_larger_sizes(paper_data, tmp_path):
     assert status == [("3", "skipped"), ("3", "timeout"), ("5", "skipped"), ("5", "skipped")]
 
 
+@pytest.mark.process
 def test_bench_movingai_subprocess(tmp_path):
     out = tmp_path / "out"
     p = run_cli("bench", "movingai", "--maps", "random-32-32-20", "--scens", "random-1..2", "--agents", "5,10",
@@ -209,6 +215,7 @@ def test_bench_movingai_subprocess(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_bench_command_times_whole_processes(paper_data, tmp_path):
     out = tmp_path / "out"
     p = run_cli("bench", "command", "--sizes", "3,5", "--repeat", "2", "--data", str(paper_data),

@@ -4,6 +4,8 @@ import sys
 
 import pytest
 
+pytestmark = pytest.mark.process   # every test here starts a process
+
 
 @pytest.mark.slow
 @pytest.mark.parametrize("args, words", [

@@ -74,6 +74,7 @@ def _alive(t: ZenohTransport, key: str) -> bool:
     return seen.wait(WAIT_S)
 
 
+@pytest.mark.process
 def test_init_writes_private_keys_and_configs_zenoh_accepts(tmp_path):
     out = tmp_path / "s"
     r = subprocess.run([sys.executable, "-m", "uav_robots", "secure", "init", str(out), "--robots", "70",
@@ -215,6 +216,7 @@ def _run(args: list[str], timeout: float = 240) -> subprocess.Popen:
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_a_secure_mission_completes_while_a_member_forges_everything(tmp_path):
     """The whole default mission over TLS with ACL, while robot 0's identity floods forged messages."""
     out = tmp_path / "out"
@@ -261,6 +263,7 @@ def test_a_secure_mission_completes_while_a_member_forges_everything(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_run_secure_uses_a_secure_init_directory_and_cleans_a_temporary_one(tmp_path):
     d = tmp_path / "made"
     init = subprocess.run([sys.executable, "-m", "uav_robots", "secure", "init", str(d), "--robots", "3",
@@ -297,6 +300,7 @@ def test_the_cost_bench_runs_a_lockstep_barrier_both_ways(tmp_path):
     (["secure", "init", "{d}", "--robots", "5000", "--robots-per-process", "1"], "at most 1024 identities"),
     (["run", "--secure", "{d}"], "no fleet.json"),
 ])
+@pytest.mark.process
 def test_bad_security_input_is_one_line_before_anything_is_written(tmp_path, args, words):
     d = tmp_path / "certs"
     r = subprocess.run([sys.executable, "-m", "uav_robots", *[a.format(d=d) for a in args]], capture_output=True,

@@ -96,6 +96,7 @@ EVERY_LOG = {"uav.log", "world.log", "vehicle.log", "robots-0-0.log", "robots-1-
 
 @pytest.mark.slow
 @pytest.mark.parametrize("how, code", [("kill-world", 1), ("kill-uav", 1), ("sigterm", 143), ("sigint", 130)])
+@pytest.mark.process
 def test_every_stop_mid_execution_leaves_a_report_and_every_log(tmp_path, how, code):
     run = Run(tmp_path)
     try:
@@ -137,6 +138,7 @@ def test_every_stop_mid_execution_leaves_a_report_and_every_log(tmp_path, how, c
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_a_failing_run_into_an_earlier_runs_directory_leaves_nothing_of_it_standing(tmp_path):
     """An earlier run's report (8/8 completed) must not become the new run's, nor its page, recording,
     video, details or logs."""
@@ -175,6 +177,7 @@ def _frames(video: Path) -> int:
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_a_forged_tick_during_a_mission_costs_no_long_video(tmp_path):
     """One decodable Tick(k=100000) and RobotState(tick=100000) on the fleet's keys, then the mission ends:
     the launcher's video (drawn ahead or at the end) stops at the mission's last tick, and says what it left out."""
@@ -219,6 +222,7 @@ def _forged_recording(out: Path, with_report: bool) -> None:
 
 
 @pytest.mark.parametrize("with_report", [True, False])
+@pytest.mark.process
 def test_replay_draws_up_to_the_missions_last_tick_whatever_a_message_claims(tmp_path, with_report):
     _forged_recording(tmp_path, with_report)
     res = subprocess.run(CLI + ["replay", str(tmp_path)], capture_output=True, text=True, timeout=60)
@@ -292,6 +296,7 @@ def test_a_touchdown_faster_than_3_m_s_is_a_crash_in_the_vehicles_record():
 
 @pytest.mark.slow
 @pytest.mark.skipif(os.geteuid() != 0 or not shutil.which("mount"), reason="mounts a small tmpfs (root)")
+@pytest.mark.process
 def test_a_full_disk_is_one_line_exit_1_and_no_hang(tmp_path):
     disk = tmp_path / "disk"
     disk.mkdir()
@@ -342,6 +347,7 @@ def test_the_draft_video_stops_at_the_plans_last_tick_and_is_kept_only_for_the_s
     assert _frames(tmp_path / "replay.mp4") == 2      # ticks 0 and 1: the forged tick is left out
 
 
+@pytest.mark.process
 def test_a_uav_deaf_to_sigterm_is_killed_after_the_bound_or_at_a_second_signal(tmp_path, monkeypatch):
     """The stop is bounded: UAV_STOP_S after SIGTERM the UAV is killed; a second Ctrl-C stops waiting."""
     from uav_robots.run import launcher as launcher_module

@@ -93,6 +93,7 @@ def test_lanes_never_meet():
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_bench_ticks_runs_real_processes(tmp_path):
     """A small run of the benchmark: real world, robot and echo processes over Zenoh, both hostings."""
     done = subprocess.run([sys.executable, "-m", "uav_robots", "bench", "ticks", "--robots", "4", "--ticks", "20",
@@ -108,6 +109,7 @@ def test_bench_ticks_runs_real_processes(tmp_path):
     assert "bare barrier" in (tmp_path / "ticks.md").read_text()
 
 
+@pytest.mark.process
 def test_bench_ticks_bad_input_is_one_line():
     done = subprocess.run([sys.executable, "-m", "uav_robots", "bench", "ticks", "--ticks", "5"], cwd=REPO,
                           capture_output=True, text=True, timeout=60)

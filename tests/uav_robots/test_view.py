@@ -45,6 +45,7 @@ def recorded(tmp_path_factory):
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_mission_mcap_holds_the_mission(recorded):
     from mcap.reader import make_reader
 
@@ -89,6 +90,7 @@ def test_mission_mcap_holds_the_mission(recorded):
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_replay_reproduces_the_video(recorded):
     out, report = recorded
     first = out / "replay.mp4"
@@ -112,6 +114,7 @@ def _frames(path: Path) -> list[np.ndarray]:
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_report_html_has_the_reports_numbers(recorded):
     out, report = recorded
     page = (out / "report.html").read_text()
@@ -147,6 +150,7 @@ def test_video_is_readable_on_the_450_map(tmp_path):
     assert np.abs(ring - floor).sum() > 60, "no disc drawn where robot 0 stands"
 
 
+@pytest.mark.process
 def test_replay_bad_input_is_one_line_exit_2(tmp_path):
     res = subprocess.run(CLI + ["replay", str(tmp_path)], capture_output=True, text=True, timeout=60)
     assert res.returncode == 2 and res.stderr.count("\n") == 1 and "mission.mcap" in res.stderr
@@ -181,6 +185,7 @@ def _wait(page, expression, timeout_s):
 
 
 @pytest.mark.browser
+@pytest.mark.process
 def test_live_view_in_a_real_browser(tmp_path):
     port = _port()
     log = open(tmp_path / "run.txt", "w")
@@ -229,6 +234,7 @@ def test_live_view_in_a_real_browser(tmp_path):
 
 
 @pytest.mark.browser
+@pytest.mark.process
 def test_recorded_mission_in_the_view(recorded):
     out, report = recorded
     port = _port()

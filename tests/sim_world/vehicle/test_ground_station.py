@@ -355,6 +355,7 @@ def stop(proc: subprocess.Popen) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_world_vehicle_flies_a_mission_uploaded_by_a_ground_station():
     gcs_port = free_port()
     gcs = Client(None, listen=gcs_port, heartbeat_hz=2.0)  # like QGroundControl on 14550
@@ -389,6 +390,7 @@ def test_world_vehicle_flies_a_mission_uploaded_by_a_ground_station():
 
 
 @pytest.mark.slow
+@pytest.mark.process
 def test_run_with_a_signed_ground_station_completes_while_it_watches(tmp_path):
     key_file = tmp_path / "key.hex"
     key_file.write_text(KEY.hex() + "\n")  # as `openssl rand -hex 32` writes it

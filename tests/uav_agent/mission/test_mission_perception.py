@@ -12,6 +12,8 @@ import pytest
 
 from uav_agent.report import load_report
 
+pytestmark = pytest.mark.process   # every test here starts a process
+
 CLI = [sys.executable, "-m", "uav_robots"]
 
 

@@ -25,6 +25,8 @@ from protocol.messages import Done
 from protocol.transport import ZenohTransport
 from uav_agent.report import load_report
 
+pytestmark = pytest.mark.process   # every test here starts a process
+
 CLI = [sys.executable, "-m", "uav_robots", "run", "--camera", "ideal"]   # the subject is recovery, not the camera
 
 

@@ -118,6 +118,7 @@ def _run(code: str, env: dict[str, str]) -> tuple[dict, str]:
 
 @pytest.mark.slow
 @needs_compiler
+@pytest.mark.process
 def test_a_build_plans_without_numba_and_as_the_jit_does(build):
     again = subprocess.run([sys.executable, "-m", "uav_robots", "build"], cwd=ROOT, env=_env(build),
                            capture_output=True, text=True, timeout=120)
@@ -131,6 +132,7 @@ def test_a_build_plans_without_numba_and_as_the_jit_does(build):
 
 
 @needs_compiler
+@pytest.mark.process
 def test_an_argument_the_build_never_saw_falls_back_to_numba(build):
     out, err = _run(_FALLBACK, _env(build))
     assert out == {"mode": "aot", "same": True, "numba": True}
@@ -138,6 +140,7 @@ def test_an_argument_the_build_never_saw_falls_back_to_numba(build):
 
 
 @needs_compiler
+@pytest.mark.process
 def test_a_changed_source_is_not_loaded_from_an_old_build(build):
     # another build's name (an edit of any planning source): the process keeps the JIT
     manifest = next(build.glob("*/aot/kernels_*.json"))
@@ -151,6 +154,7 @@ def test_a_changed_source_is_not_loaded_from_an_old_build(build):
         moved.rename(manifest)
 
 
+@pytest.mark.process
 def test_a_machine_without_a_compiler_is_told_in_one_line(tmp_path):
     env = {**_env(tmp_path), "CC": str(tmp_path / "no-such-cc")}
     done = subprocess.run([sys.executable, "-m", "uav_robots", "build"], cwd=ROOT, env=env, capture_output=True,
@@ -162,6 +166,7 @@ def test_a_machine_without_a_compiler_is_told_in_one_line(tmp_path):
 
 
 @needs_compiler
+@pytest.mark.process
 def test_numbas_own_switch_runs_the_kernels_interpreted_beside_a_build(build):
     # build/interpreted.py's child asks for plain Python with NUMBA_DISABLE_JIT=1: a build there would
     # plan in milliseconds what a fresh clone's first run plans interpreted

@@ -60,6 +60,7 @@ def compiled():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name,free,starts,goals,connectivity,seed", instances(), ids=lambda v: v if isinstance(v, str) else "")
+@pytest.mark.process
 def test_interpreted_plans_are_the_compiled_plans(compiled, name, free, starts, goals, connectivity, seed):
     kw = dict(planner="lacam", assign="optimal", connectivity=connectivity, time_limit=60.0, fallback=True, seed=seed)
     compiled = plan_mission(free, starts, goals, **kw)
@@ -70,6 +71,7 @@ def test_interpreted_plans_are_the_compiled_plans(compiled, name, free, starts, 
     assert interpreted.metrics == compiled.metrics and interpreted.planner == compiled.planner
 
 
+@pytest.mark.process
 def test_interpreted_planning_error_is_one_line():
     free = np.ones((3, 5), dtype=bool)
     free[:, 2] = False       # the goal is behind a wall
@@ -81,6 +83,7 @@ def test_interpreted_planning_error_is_one_line():
     assert str(interpreted.value) == str(compiled.value) and "cannot reach" in str(compiled.value)
 
 
+@pytest.mark.process
 def test_the_time_limit_reached_interpreted_is_left_to_the_compiled_kernels():
     """Not a planning error: the compiled kernels may well plan it in time (the mission and
     `uav-robots plan` then wait for them)."""
@@ -91,6 +94,7 @@ def test_the_time_limit_reached_interpreted_is_left_to_the_compiled_kernels():
                          time_limit=0.2, fallback=True, seed=0)
 
 
+@pytest.mark.process
 def test_a_planner_started_ahead_plans_what_a_new_one_plans_and_an_unused_one_ends():
     """The mission starts the interpreted child while the vehicle takes off: the same plan when the
     instance comes, and no process left behind when none does."""
@@ -125,6 +129,7 @@ def _numba_cache_path(cache_dir: str | None) -> str:
                           capture_output=True, text=True, check=True).stdout.strip()
 
 
+@pytest.mark.process
 def test_cache_dir_is_where_numba_caches(tmp_path, monkeypatch):
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
     assert cache.cache_dir(MAPF) == Path(_numba_cache_path(str(tmp_path)))
@@ -132,6 +137,7 @@ def test_cache_dir_is_where_numba_caches(tmp_path, monkeypatch):
     assert cache.cache_dir(MAPF) == Path(_numba_cache_path(None))
 
 
+@pytest.mark.process
 def test_a_changed_source_empties_numba_cache_once(tmp_path, monkeypatch):
     """numba checks a cached kernel against its own file only; the stamp of every planning source
     beside the cache empties it when any of them changed (an edit of a helper in another file)."""
@@ -187,6 +193,7 @@ def test_warm_needs_every_marker_newer_than_its_source(tmp_path, monkeypatch):
     assert not cache.cached(*warm.MARKERS[0]) and not warm.is_warm()
 
 
+@pytest.mark.process
 def test_one_compiler_at_a_time(tmp_path, monkeypatch):
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))   # a cold cache of the test's own
     assert not lock.busy()

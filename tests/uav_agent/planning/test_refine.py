@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from protocol.mapfile import read_map, read_scen
 from scenarios.benchmarks import movingai_map, movingai_scen
@@ -50,6 +51,7 @@ def test_refinement_never_costs_more_and_stops_at_the_bound():
     assert plain.metrics["sum_of_costs"] == r.metrics["initial_sum_of_costs"]
 
 
+@pytest.mark.process
 def test_the_command_refines_and_refuses_a_bad_budget(tmp_path):
     m, s = movingai_map(MAP), movingai_scen(MAP, "random-2")
     out = tmp_path / "plan.json"
