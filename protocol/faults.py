@@ -10,6 +10,7 @@ executor gives it its effect (a robot's agent: `robot_agents/agent.py`; the worl
     robot.liar   liar:ROBOT              it raises Done as soon as it has a plan, then never moves or reports
     world.slip   slip:P                  any move ends elsewhere with probability P
     world.skid   skid:ROBOT@TICK         from tick TICK every move of the robot ends elsewhere
+    vehicle.battery  battery:PCT@SECONDS  after SECONDS simulated seconds in the air the pack holds PCT per cent
 
 Ticks count the UAV's clock (the `k` of `Tick`), so a stall ends when the rest of the fleet
 has moved on that far, however long the UAV held it.
@@ -21,7 +22,7 @@ from dataclasses import dataclass
 
 from .errors import UavRobotsError
 
-ROBOTS, WORLD = "robots", "world"   # the processes that inject faults
+ROBOTS, WORLD, VEHICLE = "robots", "world", "vehicle"   # the processes that inject faults
 
 
 @dataclass(frozen=True)
@@ -30,7 +31,7 @@ class FaultKind:
     kind: str
     form: str          # the spec's grammar, as a person writes it
     pattern: str       # the same, as a regular expression with named fields
-    injector: str      # ROBOTS or WORLD
+    injector: str      # ROBOTS, WORLD or VEHICLE
     help: str
 
     @property
@@ -51,6 +52,9 @@ CATALOGUE: tuple[FaultKind, ...] = (
               "any move ends elsewhere with probability P"),
     FaultKind("world", "skid", "skid:ROBOT@TICK", rf"skid:(?P<robot>{_INT})@(?P<tick>{_INT})", WORLD,
               "from that tick every move of the robot does: it keeps deviating"),
+    FaultKind("vehicle", "battery", "battery:PCT@SECONDS", rf"battery:(?P<pct>{_INT})@(?P<seconds>{_INT})", VEHICLE,
+              "after SECONDS simulated seconds in the air our vehicle's pack holds only PCT per cent: its own "
+              "failsafe acts"),
 )
 KINDS = {k.kind: k for k in CATALOGUE}
 
@@ -62,6 +66,8 @@ class Fault:
     tick: int = 0
     ticks: int = 0
     p: float = 0.0
+    pct: int = 0          # battery: the charge left, in per cent
+    seconds: int = 0      # battery: simulated seconds in the air before the pack drops
 
     @property
     def row(self) -> FaultKind:
@@ -73,7 +79,8 @@ class Fault:
 
     def __str__(self) -> str:
         return (self.row.form.replace("ROBOT", str(self.robot)).replace("TICKS", str(self.ticks))
-                .replace("TICK", str(self.tick)).replace("P", f"{self.p:g}"))
+                .replace("TICK", str(self.tick)).replace("PCT", str(self.pct)).replace("SECONDS", str(self.seconds))
+                .replace("P", f"{self.p:g}"))
 
     def silent_at(self, k: int) -> bool:
         """True while the robot must neither move nor report at tick k."""
@@ -87,14 +94,14 @@ class Fault:
 def usage(injector: str | None = None) -> str:
     """The grammars of the faults `injector` takes (every fault's if None), as one line."""
     forms = [k.form for k in CATALOGUE if injector in (None, k.injector)]
-    return ", ".join(forms[:-1]) + " or " + forms[-1]
+    return forms[0] if len(forms) == 1 else ", ".join(forms[:-1]) + " or " + forms[-1]
 
 
 def help_line() -> str:
-    """`--fault`'s help: each row's grammar and what it does, the robots' then the world's."""
-    robots = ", ".join(f"{k.form} ({k.help})" for k in CATALOGUE if k.injector == ROBOTS)
-    world = ", ".join(f"{k.form} ({k.help})" for k in CATALOGUE if k.injector == WORLD)
-    return f"inject a fault (repeatable): {robots}; the world's: {world}"
+    """`--fault`'s help: each row's grammar and what it does, the robots', the world's, the vehicle's."""
+    rows = {who: ", ".join(f"{k.form} ({k.help})" for k in CATALOGUE if k.injector == who)
+            for who in (ROBOTS, WORLD, VEHICLE)}
+    return f"inject a fault (repeatable): {rows[ROBOTS]}; the world's: {rows[WORLD]}; the vehicle's: {rows[VEHICLE]}"
 
 
 def parse_fault(text: str, injector: str | None = None) -> Fault:
@@ -120,13 +127,15 @@ def parse_fault(text: str, injector: str | None = None) -> Fault:
             raise UavRobotsError(f"--fault {text!r}: ticks start at 1")
         if "ticks" in nums and nums["ticks"] < 1:
             raise UavRobotsError(f"--fault {text!r}: a stall lasts at least one tick")
+        if "pct" in nums and nums["pct"] > 100:
+            raise UavRobotsError(f"--fault {text!r}: the pack holds at most 100 %")
         return Fault(row.kind, **nums)
     raise UavRobotsError(f"--fault {text!r}: give {usage(injector)}")
 
 
 def split_faults(specs: list[str]) -> dict[str, list[Fault]]:
-    """Specs by the process that injects them: {ROBOTS: [...], WORLD: [...]} (both keys always there)."""
-    out: dict[str, list[Fault]] = {ROBOTS: [], WORLD: []}
+    """Specs by the process that injects them: {ROBOTS: [...], WORLD: [...], VEHICLE: [...]} (every key there)."""
+    out: dict[str, list[Fault]] = {ROBOTS: [], WORLD: [], VEHICLE: []}
     for spec in specs:
         f = parse_fault(spec)
         out[f.injector].append(f)

@@ -20,6 +20,7 @@ import time
 from typing import Any
 
 from protocol.errors import MissionError, UavRobotsError
+from protocol.faults import CATALOGUE, VEHICLE, parse_fault, usage
 from protocol.run_spec import add_spec_argument, apply_spec
 
 DEFAULT_URL = "udpout:127.0.0.1:14540"
@@ -116,6 +117,9 @@ def add_vehicle_arguments(p: argparse.ArgumentParser) -> None:
                         "ArduPilot SITL accepts GUIDED and arming only about 38 s after it starts)")
     p.add_argument("--companion", type=int, default=None, metavar="SYSID",
                    help="the only MAVLink system the flight link answers (default: the first that talks to it)")
+    p.add_argument("--fault", action="append", default=[], metavar=usage(VEHICLE),
+                   help="inject a fault into the vehicle (repeatable): " + "; ".join(
+                       f"{k.form}: {k.help}" for k in CATALOGUE if k.injector == VEHICLE))
     add_spec_argument(p)
 
 
@@ -125,6 +129,7 @@ SPEC_FIELDS = {
     "--time-scale": lambda s: s.vehicle.time_scale, "--seed": lambda s: s.seed, "--preset": lambda s: s.vehicle.preset,
     "--gcs": lambda s: s.vehicle.gcs, "--mavlink-key": lambda s: s.vehicle.mavlink_key,
     "--mavlink-bind": lambda s: s.vehicle.mavlink_bind, "--wobble": lambda s: camera_wobble_deg(s.camera.model),
+    "--fault": lambda s: [str(f) for f in s.parsed_faults() if f.injector == VEHICLE],
 }
 
 
@@ -156,7 +161,10 @@ def _estimate_options(args: argparse.Namespace) -> dict:
     names = {"heading": "heading_deg", "position_noise": "position_noise_m", "position_bias": "position_bias_m",
              "attitude_noise": "attitude_noise_deg", "companion": "companion_system_id",
              "streams_until_asked": "streams_until_asked", "ready_after": "ready_after_s"}
-    return {field: getattr(args, arg) for arg, field in names.items() if getattr(args, arg, None) is not None}
+    options = {field: getattr(args, arg) for arg, field in names.items() if getattr(args, arg, None) is not None}
+    for f in (parse_fault(spec, VEHICLE) for spec in getattr(args, "fault", [])):
+        options["battery_drop"] = (f.pct / 100.0, float(f.seconds))
+    return options
 
 
 def vehicle_command(args: argparse.Namespace) -> int:

@@ -27,11 +27,12 @@ from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk
 from mavsdk.plugins.action import Action, ActionError, ActionResult
 from mavsdk.plugins.mavlink_direct import MavlinkDirect, MavlinkMessage
 from mavsdk.plugins.offboard import Offboard, OffboardError, PositionNedYaw
-from mavsdk.plugins.telemetry import FixType, LandedState, StatusTextType, Telemetry
+from mavsdk.plugins.telemetry import FixType, Telemetry
 
 from protocol.errors import MissionError
-from protocol.geo import check_home, geo_to_ned, ned_to_geo
+from protocol.geo import check_home, ned_to_geo
 
+from .flight_readings import Readings
 from .mavsdk_logs import route_mavsdk_logs
 
 DEFAULT_URL = "udpin://0.0.0.0:14540"
@@ -42,15 +43,16 @@ SETTLED_M_S = 0.5  # a goto has arrived once the vehicle is this slow near its t
 NO_HOME_S = 3.0
 OFFBOARD_START_S = 3.0   # how long the switch to offboard may take once setpoints stream
 ARM_RETRY_S = 1.0        # a refused arm is asked again this often while the autopilot gets ready
+# A refused command waits this long for the guard to name the autopilot's own decision behind it: more than a
+# heartbeat's period (1 s, the mode's only carrier), so a failsafe that took the vehicle just before the
+# command is what the mission reports, not the refusal it caused.
+REFUSAL_GRACE_S = 1.5
 MAV_CMD_DO_SET_MODE, CUSTOM_MODE_ENABLED, COPTER_GUIDED = 176, 1, 4
-# The autopilot's words worth quoting: a warning or worse, said this recently (ArduPilot says a lot at INFO,
-# "EKF3 IMU0 MAG0 in-flight yaw alignment complete", which would otherwise be quoted as an RTL's reason).
-ALERT_S = 15.0
 
 _log = logging.getLogger("uav_agent.flight")
 
 
-class Flight:
+class Flight(Readings):
     """Fly one autopilot over MAVLink: `connect`, `arm`, `takeoff`, `goto`, `land`.
 
     Usable as a context manager; `close()` releases MAVSDK (its sockets and threads).
@@ -361,105 +363,7 @@ class Flight:
         self._wait(lambda: self.landed, deadline, lambda: (f"vehicle did not land and disarm within {timeout_s:g} s"
                                             f" (at {self._altitude():.1f} m, {telemetry.landed_state().name})"))
 
-    # --- state -------------------------------------------------------------------------
-
-    def home(self) -> tuple[float, float, float]:
-        """(latitude, longitude, altitude AMSL m) of the frame's origin, as read at connect."""
-        self._link()
-        return self._home
-
-    def position_ned(self) -> tuple[float, float, float]:
-        """(north, east, down) metres from home."""
-        _, telemetry = self._link()
-        if self._offboard is not None:
-            return self._local()
-        pos = telemetry.position()
-        home_lat, home_lon, home_alt = self._home
-        north, east = geo_to_ned(pos.latitude_deg, pos.longitude_deg, home_lat, home_lon)
-        return north, east, home_alt - pos.absolute_altitude_m
-
-    def pose(self) -> tuple[float, float, float, float]:
-        """(north, east, down, yaw_rad), the same tuple `sim_world.vehicle.Vehicle.pose` gives."""
-        _, telemetry = self._link()
-        yaw = math.radians(telemetry.attitude_euler().yaw_deg)
-        return (*self.position_ned(), yaw if math.isfinite(yaw) else 0.0)
-
-    def attitude_rad(self) -> tuple[float, float, float]:
-        """(roll, pitch, yaw) in radians; 0 for an angle the autopilot has not sent."""
-        return self.attitude_sample()[:3]
-
-    def attitude_sample(self) -> tuple[float, float, float, int]:
-        """(roll, pitch, yaw) in radians and the autopilot's time of the sample (microseconds since
-        its boot; 0 if it sends none): a new time is a sample sent after the one read before."""
-        _, telemetry = self._link()
-        e = telemetry.attitude_euler()
-        angles = tuple(math.radians(v) if math.isfinite(v) else 0.0 for v in (e.roll_deg, e.pitch_deg, e.yaw_deg))
-        return (*angles, int(e.timestamp_us))
-
-    @property
-    def battery_pct(self) -> float:
-        """Remaining charge 0-100, or -1 when the autopilot has not said."""
-        pct = self._link()[1].battery().remaining_percent
-        return min(100.0, max(0.0, pct)) if math.isfinite(pct) else -1.0
-
-    @property
-    def battery_time_left_s(self) -> float | None:
-        """The autopilot's own estimate of the flight time its pack has left at the current draw (its
-        seconds: BATTERY_STATUS.time_remaining), or None when it gives none."""
-        t = self._link()[1].battery().time_remaining_s
-        return float(t) if t is not None and math.isfinite(t) and t > 0 else None
-
-    @property
-    def armed(self) -> bool:
-        return self._link()[1].armed()
-
-    @property
-    def in_air(self) -> bool:
-        return self._link()[1].in_air()
-
-    @property
-    def flight_mode(self) -> str:
-        """The autopilot's mode as MAVSDK names it: HOLD, TAKEOFF, LAND, OFFBOARD, ..."""
-        return self._link()[1].flight_mode().name
-
-    @property
-    def autopilot(self) -> str:
-        """PX4, ARDUPILOT, GENERIC or UNKNOWN, from the autopilot's heartbeat: modes mean different
-        things (MAVSDK names ArduCopter's GUIDED, the mode a companion flies it in, OFFBOARD)."""
-        return self._system.autopilot_type().name if self._system is not None else "UNKNOWN"
-
-    @property
-    def status_text(self) -> str:
-        """The autopilot's last warning or worse of the last ALERT_S ('' if none): a failsafe says why it
-        took the vehicle, a refused arm why it refused."""
-        when, text = self._alert
-        return text if time.monotonic() - when <= ALERT_S else ""
-
-    def _on_status_text(self, status, _user_data) -> None:   # MAVSDK's thread
-        if status.type.value >= StatusTextType.WARNING.value and status.text:
-            self._alert = (time.monotonic(), str(status.text))
-
-    @property
-    def landed(self) -> bool:
-        """On the ground and disarmed, as the autopilot says."""
-        _, telemetry = self._link()
-        return telemetry.landed_state() == LandedState.ON_GROUND and not telemetry.armed()
-
     # --- helpers -----------------------------------------------------------------------
-
-    def _link(self) -> tuple[Action, Telemetry]:
-        if self._action is None or self._telemetry is None:
-            raise MissionError(f"not connected to an autopilot at {self.url} (call connect() first)")
-        return self._action, self._telemetry
-
-    def _altitude(self) -> float:
-        if self._offboard is not None:
-            return -self._local()[2]
-        return self._telemetry.position().relative_altitude_m
-
-    def _local(self) -> tuple[float, float, float]:
-        p = self._telemetry.position_velocity_ned().position
-        return p.north_m, p.east_m, p.down_m
 
     def _act(self, what: str, call: Callable[[], object]) -> None:
         self._check_guard()
@@ -468,7 +372,18 @@ class Flight:
         except ActionError as exc:
             if exc.result in (ActionResult.TIMEOUT, ActionResult.NO_SYSTEM, ActionResult.CONNECTION_ERROR):
                 raise MissionError(f"vehicle did not answer the request to {what} ({exc.result.name})") from None
-            raise MissionError(f"vehicle refused to {what}: {exc.result.name}") from None
+            self._refused(what, exc.result.name)
+
+    def _refused(self, what: str, result: str) -> None:
+        """A refusal is often the autopilot's own decision taken a moment before (a failsafe's RTL denies the
+        next goto): the guard's reason, if it names one within REFUSAL_GRACE_S, is the mission's; else the refusal."""
+        deadline = time.monotonic() + REFUSAL_GRACE_S
+        while time.monotonic() < deadline:
+            why = self.guard()
+            if why:
+                raise MissionError(f"vehicle: {why}")
+            time.sleep(POLL_S)
+        raise MissionError(f"vehicle refused to {what}: {result}")
 
     def _check_guard(self) -> None:
         why = self.guard()

@@ -29,6 +29,7 @@ class VehicleWatch:
         self.taken_by: str | None = None   # the autopilot's own mode, a disarm or the ground: not the mission's
         self._airborne = threading.Event()
         self._lifting = False   # taking off: still on the ground is no fault, a foreign mode is
+        self._judging = threading.Lock()   # the loop and `now` record one fault, once
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="vehicle-watch", daemon=True)
         self._thread.start()
@@ -60,17 +61,25 @@ class VehicleWatch:
 
     def _loop(self) -> None:
         while not self._stop.wait(self.period_s):
+            self.now()
+
+    def now(self) -> str | None:
+        """The fault, judged on the caller's thread from the latest telemetry (the flight's guard asks before
+        every command and at every poll of a wait: it must not wait for the loop's next turn)."""
+        with self._judging:
             if not self._airborne.is_set() or self.fault is not None:
-                continue
+                return self.fault
             try:
                 taken, why = self._taken()
             except Exception as exc:  # noqa: BLE001 - a lost link is a fault like any other
                 taken, why = None, f"the vehicle's telemetry failed: {exc}"
             # The mission may have cleared the flag (its own landing) while we were reading.
-            if why is not None and self._airborne.is_set():
-                self.taken_by = taken
-                self.fault = why
-                self.on_fault(why)
+            if why is None or not self._airborne.is_set():
+                return None
+            self.taken_by = taken
+            self.fault = why
+        self.on_fault(why)
+        return why
 
     @property
     def failsafe(self) -> bool:

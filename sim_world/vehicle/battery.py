@@ -41,13 +41,17 @@ def load_current(hover_a: float, armed: bool, airborne: bool, speed_xy: float, c
 class Battery:
     """Charge used (mAh) and the current load; `drain` steps it and announces a new level once."""
 
-    def __init__(self, lock: threading.RLock, journal: Journal, params: Params):
+    def __init__(self, lock: threading.RLock, journal: Journal, params: Params,
+                 drop: tuple[float, float] | None = None):
         self._lock = lock
         self._journal = journal
         self._params = params
         self._used_mah = 0.0
         self._current_a = IDLE_A
         self._charge = Charge.OK
+        # The injected fault `battery:PCT@SECONDS` (protocol/faults.py): (fraction left, seconds in the air).
+        self._drop = drop
+        self._airborne_s = 0.0
 
     def drain(self, dt: float, armed: bool, airborne: bool, vel: tuple[float, float, float]) -> Charge | None:
         """Draw the load for `dt` simulated seconds; the new charge state if it just got worse."""
@@ -56,6 +60,13 @@ class Battery:
             self._current_a = load_current(p.get("SIM_BAT_HOVER_A"), armed, airborne, math.hypot(vel[0], vel[1]),
                                            -vel[2])
             self._used_mah += self._current_a * dt / 3.6
+            if airborne:
+                self._airborne_s += dt
+            if self._drop is not None and self._airborne_s >= self._drop[1]:
+                left, self._drop = self._drop[0], None
+                self._used_mah = max(self._used_mah, (1.0 - left) * p.get("BAT1_CAPACITY"))
+                self._journal.event(f"fault injected: the pack holds {left:.0%} after {self._airborne_s:.0f} s "
+                                    "in the air")
             charge = self.charge_of(self.remaining)
             if charge <= self._charge:
                 self._charge = charge  # a fuller pack (a new BAT1_CAPACITY) starts its warnings over

@@ -69,6 +69,8 @@ class VehicleConfig:
     position_noise_m: float = 0.0     # white noise (1 sigma) on the reported position
     position_bias_m: float = 0.0      # the reported position's slowly wandering error (1 sigma)
     attitude_noise_deg: float = 0.0   # white noise (1 sigma) on the reported roll, pitch and yaw
+    # The fault `battery:PCT@SECONDS` (protocol/faults.py): (fraction left, simulated seconds in the air).
+    battery_drop: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         check_home(self.home_lat, self.home_lon)
@@ -84,6 +86,9 @@ class VehicleConfig:
             raise MissionError("vehicle home_alt_m and disarm_after_land_s must be finite (the latter >= 0)")
         if not (math.isfinite(self.ready_after_s) and 0 <= self.ready_after_s <= 3600):
             raise MissionError(f"vehicle ready_after_s must be in [0, 3600], got {self.ready_after_s}")
+        if self.battery_drop is not None and not (0 <= self.battery_drop[0] <= 1 and self.battery_drop[1] >= 0):
+            raise MissionError(f"vehicle battery_drop must be (a fraction in [0, 1], seconds >= 0), got "
+                               f"{self.battery_drop}")
         if not (math.isfinite(self.heading_deg) and -360 <= self.heading_deg <= 360):
             raise MissionError(f"vehicle heading_deg must be in [-360, 360], got {self.heading_deg}")
         if not (math.isfinite(self.hover_wobble_deg) and 0 <= self.hover_wobble_deg <= 30):

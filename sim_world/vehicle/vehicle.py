@@ -48,7 +48,7 @@ class Vehicle:
         self._offboard = Offboard(cfg, self._lock, self._journal, self._link, self._dynamics)
         self._estimator = Estimator(cfg, self._lock)
         self._payload = Payload(self._lock, self._journal, announce=self._announce_trigger)
-        self._battery = Battery(self._lock, self._journal, self._params)
+        self._battery = Battery(self._lock, self._journal, self._params, cfg.battery_drop)
         self._datalink = Datalink(self._lock)
         enc = self._link.encoder
         self._mission = Mission(self._lock, self._params, (cfg.home_lat, cfg.home_lon, cfg.home_alt_m),

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, strategies as st
 
 from protocol.errors import UavRobotsError
-from protocol.faults import CATALOGUE, ROBOTS, WORLD, Fault, help_line, parse_fault, split_faults, usage
+from protocol.faults import CATALOGUE, ROBOTS, VEHICLE, WORLD, Fault, help_line, parse_fault, split_faults, usage
 from protocol.run_spec import (CameraSpec, LimitsSpec, PlanningSpec, RunSpec, VehicleSpec, add_spec_argument,
                                apply_spec, given_flags, read_spec, spec_from_dict)
 
@@ -69,24 +69,28 @@ def test_the_spec_fills_what_the_command_line_did_not_give(tmp_path):
 
 def test_every_fault_kind_is_one_row_named_unit_dot_kind():
     names = [k.name for k in CATALOGUE]
-    assert names == ["robot.crash", "robot.stall", "robot.liar", "world.slip", "world.skid"]
+    assert names == ["robot.crash", "robot.stall", "robot.liar", "world.slip", "world.skid", "vehicle.battery"]
     assert all(k.form in help_line() and k.help in help_line() for k in CATALOGUE)
     assert usage(ROBOTS) == "crash:ROBOT@TICK, stall:ROBOT@TICK:TICKS or liar:ROBOT"
 
 
 @given(kind=st.sampled_from(CATALOGUE), robot=st.integers(0, 999), tick=st.integers(1, 10**6),
-       ticks=st.integers(1, 1000), p=st.sampled_from([0.0, 0.05, 0.5, 1.0]))
-def test_every_fault_spec_round_trips(kind, robot, tick, ticks, p):
+       ticks=st.integers(1, 1000), p=st.sampled_from([0.0, 0.05, 0.5, 1.0]), pct=st.integers(0, 100),
+       seconds=st.integers(0, 3600))
+def test_every_fault_spec_round_trips(kind, robot, tick, ticks, p, pct, seconds):
     text = (kind.form.replace("ROBOT", str(robot)).replace("TICKS", str(ticks)).replace("TICK", str(tick))
-            .replace("P", f"{p:g}"))
+            .replace("PCT", str(pct)).replace("SECONDS", str(seconds)).replace("P", f"{p:g}"))
     fault = parse_fault(text)
     assert str(fault) == text and fault.injector == kind.injector and fault.kind == kind.kind
 
 
 def test_faults_go_to_the_process_that_injects_them():
-    split = split_faults(["crash:1@5", "slip:0.1", "skid:2@3", "liar:0"])
+    split = split_faults(["crash:1@5", "slip:0.1", "skid:2@3", "liar:0", "battery:20@30"])
     assert split[ROBOTS] == [Fault("crash", 1, 5), Fault("liar", 0)]
     assert split[WORLD] == [Fault("slip", p=0.1), Fault("skid", 2, 3)]
+    assert split[VEHICLE] == [Fault("battery", pct=20, seconds=30)]
+    with pytest.raises(UavRobotsError, match="at most 100"):
+        parse_fault("battery:101@3")
     with pytest.raises(UavRobotsError, match="give crash:ROBOT@TICK, stall:ROBOT@TICK:TICKS or liar:ROBOT"):
         parse_fault("slip:0.1", ROBOTS)
     with pytest.raises(UavRobotsError, match="P in \\[0, 1\\]"):

@@ -106,6 +106,26 @@ def test_a_critical_battery_in_the_survey_returns_the_vehicle_and_names_the_batt
     assert report["uav"].get("left_to_autopilot") in ("RETURN_TO_LAUNCH", "LAND")
 
 
+@pytest.mark.slow
+@pytest.mark.process
+def test_an_injected_battery_fault_is_the_vehicles_to_act_on_and_the_mission_leaves_it_to_it(tmp_path):
+    """`--fault battery:6@3` (protocol/faults.py, vehicle.battery): the run spec carries it to our vehicle,
+    whose pack holds 6 % after 3 s in the air, under BAT_CRIT_THR: its own failsafe returns it home. The
+    mission ends aborted naming that return, commands nothing over it, and the vehicle lands."""
+    out = tmp_path / "out"
+    res = subprocess.run([*CLI, "--fault", "battery:6@3", "--out", str(out)], capture_output=True, text=True,
+                         timeout=300)
+    assert res.returncode == 1, res.stderr[-2000:]
+    report = json.loads((out / "report.json").read_text())
+    assert report["outcome"] == "aborted" and report["run"]["faults"] == ["battery:6@3"]
+    assert "RETURN_TO_LAUNCH" in report["reason"] and "battery" in report["reason"], report["reason"]
+    assert report["uav"]["left_to_autopilot"] == "RETURN_TO_LAUNCH" and report["uav"]["landed"]
+    assert "fault injected: the pack holds 6% after 3 s in the air" in (out / "logs" / "vehicle.log").read_text()
+    events = report["truth"]["vehicle"]["events"]
+    later = _after(events, "Failsafe: critical battery")
+    assert not _commanded(later), later
+
+
 def test_the_battery_budget():
     # The issue's survey: 464 images, an hour's pack: refused before it is flown.
     poses = [(-(i // 29) * 15.0, (i % 29) * 15.0, 40.0) for i in range(464)]

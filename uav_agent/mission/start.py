@@ -54,7 +54,7 @@ def connect(ctx: MissionContext) -> None:
     watch = ctx.watch = VehicleWatch(ctx.flight, ctx.vehicle_fault)
     # Every command and every wait of the flight checks it, and every wait for the fleet: the
     # autopilot's own decision wins, and it is noticed within a poll in every phase.
-    ctx.flight.guard = lambda: watch.fault
+    ctx.flight.guard = watch.now
     ctx.fleet.interrupt = lambda: f"vehicle: {watch.fault}" if watch.fault else None
     ctx.pose_feed = PoseFeed(ctx.flight, lambda p: ctx.transport.put(ctx.keys.uav_pose, context.encode(p)),
                              t0=ctx.events.t0)
