@@ -100,6 +100,11 @@ def _typed(where: str, value: Any, kind: Any) -> Any:
     return float(value) if "float" in text and isinstance(value, int) and "int" not in text else value
 
 
+# The choices the commands' flags offer (argparse checks them on a command line, not in a spec).
+CHOICES = {"camera.source": ("zenoh", "mavlink", "video"), "vehicle.preset": ("outdoor", "indoor"),
+           "planning.connectivity": (4, 8)}
+
+
 def _section(name: str, cls: type, data: Any) -> Any:
     if not isinstance(data, dict):
         raise UavRobotsError(f"run spec: {name} must be an object")
@@ -107,6 +112,10 @@ def _section(name: str, cls: type, data: Any) -> Any:
     unknown = sorted(set(data) - set(fields))
     if unknown:
         raise UavRobotsError(f"run spec: {name} has no field {unknown[0]!r} (it has {', '.join(fields)})")
+    for k, v in data.items():
+        allowed = CHOICES.get(f"{name}.{k}")
+        if allowed is not None and v not in allowed:
+            raise UavRobotsError(f"run spec: {name}.{k} is {v!r}, not one of {', '.join(map(str, allowed))}")
     return cls(**{k: _typed(f"{name}.{k}", v, fields[k].type) for k, v in data.items()})
 
 

@@ -34,6 +34,9 @@ def test_a_spec_is_read_back_exactly(tmp_path):
 @pytest.mark.parametrize("change, named", [
     ({"robots": "8"}, "robots"),
     ({"planning": {"connectivity": 4.5}}, "planning.connectivity"),
+    ({"planning": {"connectivity": 6}}, "planning.connectivity is 6, not one of 4, 8"),
+    ({"camera": {"source": "telepathy"}}, "camera.source is 'telepathy'"),
+    ({"vehicle": {"preset": "underwater"}}, "vehicle.preset"),
     ({"camera": {"lens": "fisheye"}}, "lens"),
     ({"faults": ["fly:1"]}, "--fault 'fly:1'"),
     ({"format": "something/2"}, "format"),
@@ -103,11 +106,15 @@ def _uav_robots(argv: list[str], timeout: float) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.process
-def test_a_bad_spec_file_is_one_line_and_exit_2(tmp_path):
-    (tmp_path / "run.json").write_text(json.dumps({"format": "uav-robots-run/1", "robots": "eight"}))
+@pytest.mark.parametrize("spec, words", [
+    ({"robots": "eight"}, "robots is 'eight'"),
+    ({"planning": {"assign": "magic"}}, "--assign 'magic': one of"),   # the command's own choices, checked
+])
+def test_a_bad_spec_file_is_one_line_and_exit_2(tmp_path, spec, words):
+    (tmp_path / "run.json").write_text(json.dumps({"format": "uav-robots-run/1", **spec}))
     res = _uav_robots(["run", "--spec", str(tmp_path / "run.json")], 60)
     assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
-    assert "robots is 'eight'" in res.stderr
+    assert words in res.stderr
 
 
 @pytest.mark.slow

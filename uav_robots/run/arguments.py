@@ -157,6 +157,11 @@ def check_arguments(args) -> tuple[str, object]:
         from uav_agent.planning.registry import get_planner
 
         get_planner(args.planner)
+    if args.assign:   # a spec's (a command line's is one of argparse's choices)
+        from uav_agent.planning.assignment import ASSIGNERS
+
+        if args.assign not in ASSIGNERS:
+            raise UavRobotsError(f"--assign {args.assign!r}: one of {', '.join(ASSIGNERS)}")
     if args.secure:
         from ..secure.fleet import read_fleet_dir
 
