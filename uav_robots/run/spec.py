@@ -31,20 +31,26 @@ def from_spec_file(args: argparse.Namespace) -> None:
     apply_spec(args, RUN_FIELDS)
 
 
+def _whole(path: str | None) -> str | None:
+    """A file or directory the spec names, whole: a run repeated from elsewhere finds it."""
+    return str(Path(path).resolve()) if path and Path(path).exists() else path
+
+
 def spec_of(args: argparse.Namespace) -> RunSpec:
-    """The checked arguments as a spec (the time scale resolved: 10 for our vehicle, 1 for another autopilot)."""
+    """The checked arguments as a spec (the time scale resolved: 10 for our vehicle, 1 for another autopilot;
+    the files it names whole)."""
     return RunSpec(
-        map=args.map, robots=args.robots, seed=args.seed,
+        map=_whole(args.map), robots=args.robots, seed=args.seed,
         camera=CameraSpec(source=args.camera_source, model=args.camera),
         vehicle=VehicleSpec(preset=args.vehicle_preset, time_scale=float(args.time_scale), autopilot=args.autopilot,
                             autopilot_pose=args.autopilot_pose, autopilot_origin=args.autopilot_origin, gcs=args.gcs,
-                            mavlink_key=args.mavlink_key, mavlink_bind=args.mavlink_bind),
+                            mavlink_key=_whole(args.mavlink_key), mavlink_bind=args.mavlink_bind),
         faults=tuple(f.strip() for f in args.fault),
         planning=PlanningSpec(planner=args.planner, assign=args.assign, connectivity=args.connectivity,
                               time_limit_s=float(args.time_limit), fallback=not args.no_fallback),
         limits=LimitsSpec(tick_timeout_s=float(args.tick_timeout), tick_rate_hz=float(args.tick_rate),
                           monitor_every=args.monitor_every, timeout_s=float(args.timeout)),
-        hosting=HostingSpec(robots_per_process=args.robots_per_process, secure=args.secure))
+        hosting=HostingSpec(robots_per_process=args.robots_per_process, secure=_whole(args.secure)))
 
 
 def write_spec(out: Path, spec: RunSpec) -> Path:
