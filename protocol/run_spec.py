@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from .errors import UavRobotsError
-from .faults import Fault, parse_fault
+from .faults import parse_fault
 
 FORMAT = "uav-robots-run/1"
 RUN_JSON = "run.json"
@@ -74,8 +74,9 @@ class RunSpec:
     limits: LimitsSpec = field(default_factory=LimitsSpec)
     hosting: HostingSpec = field(default_factory=HostingSpec)
 
-    def parsed_faults(self) -> list[Fault]:
-        return [parse_fault(f) for f in self.faults]
+    def faults_for(self, injector: str) -> list[str]:
+        """The fault specs `injector` (protocol.faults.ROBOTS, WORLD or VEHICLE) injects."""
+        return [f for f in self.faults if parse_fault(f).injector == injector]
 
     def as_dict(self) -> dict[str, Any]:
         return {"format": FORMAT, **dataclasses.asdict(self), "faults": list(self.faults)}

@@ -365,7 +365,7 @@ def add_robot_arguments(p: argparse.ArgumentParser) -> None:
 # What a robot process takes from a run's spec (`--spec OUT/run.json`): the robots' faults (each pool
 # keeps those of the robots it hosts).
 SPEC_FIELDS = {"--connectivity": lambda s: s.planning.connectivity,
-               "--fault": lambda s: [str(f) for f in s.parsed_faults() if f.injector == ROBOTS]}
+               "--fault": lambda s: s.faults_for(ROBOTS)}
 
 
 def robot_main(argv: list[str] | None = None) -> int:

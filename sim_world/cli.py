@@ -78,7 +78,7 @@ SPEC_FIELDS = {
     "--map": lambda s: s.map, "--robots": lambda s: s.robots, "--seed": lambda s: s.seed,
     "--connectivity": lambda s: s.planning.connectivity, "--time-scale": lambda s: s.vehicle.time_scale,
     "--camera": lambda s: s.camera.model, "--mavlink-bind": lambda s: s.vehicle.mavlink_bind,
-    "--fault": lambda s: [str(f) for f in s.parsed_faults() if f.injector == WORLD],
+    "--fault": lambda s: s.faults_for(WORLD),
 }
 
 

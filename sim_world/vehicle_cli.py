@@ -129,7 +129,7 @@ SPEC_FIELDS = {
     "--time-scale": lambda s: s.vehicle.time_scale, "--seed": lambda s: s.seed, "--preset": lambda s: s.vehicle.preset,
     "--gcs": lambda s: s.vehicle.gcs, "--mavlink-key": lambda s: s.vehicle.mavlink_key,
     "--mavlink-bind": lambda s: s.vehicle.mavlink_bind, "--wobble": lambda s: camera_wobble_deg(s.camera.model),
-    "--fault": lambda s: [str(f) for f in s.parsed_faults() if f.injector == VEHICLE],
+    "--fault": lambda s: s.faults_for(VEHICLE),
 }
 
 
