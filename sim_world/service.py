@@ -78,8 +78,8 @@ class World(WorldCamera, Lifecycle):
         self.landmarks = scene_landmarks(self.truth.free, cfg.cell_size_m, self.camera_model)
         self.estimator = PoseEstimator(self.camera_model, cfg.seed)
         # The lens and noise tables take seconds at 12 MP: built on the camera's thread while the
-        # vehicle takes off, so the first image is not late.
-        self._camera_pool.submit(prepare, self.camera_model)
+        # vehicle takes off, so the first image is not late; a world that stops leaves them unbuilt.
+        self._camera_pool.submit(prepare, self.camera_model, self.stop.is_set)
         if cfg.autopilot_pose:
             from .pose_follower import PoseFollower
             self.follower = PoseFollower(cfg.autopilot_pose, cfg.autopilot_origin, cfg.mavlink_bind, self.warn).start()

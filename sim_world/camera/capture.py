@@ -2,6 +2,8 @@
 the vehicle's ESTIMATE of its pose."""
 from __future__ import annotations
 
+from collections.abc import Callable
+
 
 from protocol.messages import CameraFrame
 
@@ -52,8 +54,9 @@ def view_image(scene: Scene, view: VehicleView, model: CameraModel, cell_size_m:
                   velocity_ned=(view.vel_north, view.vel_east, view.vel_down))
 
 
-def prepare(model: CameraModel) -> None:
+def prepare(model: CameraModel, stopped: Callable[[], bool] = lambda: False) -> None:
     """Build the model's cached tables (the lens's distortion map, the gain field, the noise
-    bank: about 2 s at 12 MP) ahead of the first exposure, which would otherwise pay for them."""
+    bank: about 1 s at 12 MP) ahead of the first exposure, which would otherwise pay for them;
+    given up, unbuilt, soon after `stopped()` turns true."""
     lens_for(model)
-    prepare_degrade(model)
+    prepare_degrade(model, stopped)
