@@ -173,6 +173,9 @@ def read_scen(path: str | Path, free: np.ndarray | None = None, agents: int | No
         if min(sx, sy, gx, gy) < 0:  # numpy would read free[-1, x] as the last row, silently
             raise MapError(f"{name}: line {n} has a negative coordinate")
         a = ScenAgent((sx, sy), (gx, gy), length)
+        if free is not None and (parts[2], parts[3]) != (str(free.shape[1]), str(free.shape[0])):
+            raise MapError(f"{name}: line {n} is for the map {parts[1]!r} of {parts[2]}x{parts[3]} cells, "
+                           f"not this {free.shape[1]}x{free.shape[0]} floor")
         if free is not None:
             for what, (x, y) in (("start", a.start), ("goal", a.goal)):
                 if not on_grid(x, y, free.shape[1], free.shape[0]) or not free[y, x]:

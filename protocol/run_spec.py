@@ -28,9 +28,21 @@ class CameraSpec:
 
 
 @dataclass(frozen=True)
+class SceneSpec:
+    """What the world lays on the floor for the camera (scenarios/scene.py)."""
+    landmark_spacing: int = 12               # cells between surveyed landmarks (0: none)
+    goal_pads: bool = True                   # goals as green pads a robot on them leaves visible
+
+    def text(self) -> str:
+        """As `--scene` takes it (every key given: no preset needed)."""
+        return f"landmark_spacing={self.landmark_spacing},goal_pads={int(self.goal_pads)}"
+
+
+@dataclass(frozen=True)
 class VehicleSpec:
     preset: str = "outdoor"                  # our vehicle: outdoor (GPS, a home) or indoor (its local frame)
     time_scale: float = 10.0                 # simulated seconds per wall second
+    wobble_deg: float = 0.3                  # our vehicle's roll and pitch wobble in a hover (amplitude)
     autopilot: str | None = None             # another autopilot's link instead of our vehicle (the UAV's)
     autopilot_pose: str | None = None        # ... and the link the world reads its pose on
     autopilot_origin: str | None = None
@@ -67,7 +79,9 @@ class RunSpec:
     map: str = "warehouse-small"
     robots: int = 8
     seed: int = 0
+    scen: str | None = None                  # a MovingAI .scen: starts and goals (else placed by the seed)
     camera: CameraSpec = field(default_factory=CameraSpec)
+    scene: SceneSpec = field(default_factory=SceneSpec)
     vehicle: VehicleSpec = field(default_factory=VehicleSpec)
     faults: tuple[str, ...] = ()             # fault specs (protocol/faults.py), each injected by its process
     planning: PlanningSpec = field(default_factory=PlanningSpec)
@@ -85,7 +99,7 @@ class RunSpec:
         return json.dumps(self.as_dict(), indent=1)
 
 
-_SECTIONS = {"camera": CameraSpec, "vehicle": VehicleSpec, "planning": PlanningSpec, "limits": LimitsSpec,
+_SECTIONS = {"camera": CameraSpec, "scene": SceneSpec, "vehicle": VehicleSpec, "planning": PlanningSpec, "limits": LimitsSpec,
              "hosting": HostingSpec}
 
 

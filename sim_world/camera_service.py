@@ -149,7 +149,7 @@ class WorldCamera:
         with self.desk.cv:
             robots = dict(self.judge.positions)
         scene = Scene(self.truth.free, robots, list(self.truth.goals), self.landmarks,
-                      goal_pads=bool(self.camera_model.goal_pads))
+                      goal_pads=self.cfg.scene.goal_pads)
         view = self.camera_view()
         if view is None:   # no pose from the followed autopilot yet: the lens on the floor at its corner
             view = VehicleView(0.0, 0.0, -self.cfg.camera_height_m)

@@ -9,11 +9,13 @@ from protocol.errors import MissionError, UavRobotsError
 from protocol.faults import WORLD, usage
 from protocol.keys import DEFAULT_FLEET
 from protocol.run_spec import add_spec_argument, apply_spec
+from scenarios.scene import scene_options
 
-from .camera.model import DEFAULT_CAMERA_PRESET, camera_model_from, camera_options
+from .camera.model import DEFAULT_CAMERA_PRESET, camera_model_from, camera_options, camera_preset
 from .config import DRONE_CAMERA, HOME, MOVE_BATCH_TIMEOUT_S, WorldConfig
 from .faults import world_faults
 from .service import World
+from .vehicle.config import WOBBLE_OF_CAMERA_PRESET
 from .vehicle_cli import DEFAULT_URL as DEFAULT_VEHICLE_URL
 from .vehicle_cli import add_ground_station_arguments, parse_home
 
@@ -57,6 +59,13 @@ def add_world_arguments(p: argparse.ArgumentParser) -> None:
                         f"{DEFAULT_CAMERA_PRESET}) then keys over it, on the 12 MP drone camera (4000x3000, "
                         "90 deg), e.g. realistic,blur_sigma=2 or width=1280,height=960,noise_std=2 "
                         "(every key: docs/camera-and-perception.md)")
+    p.add_argument("--scene", default="", metavar="[PRESET,]K=V,...",
+                   help="what the world lays on the floor for the camera: a preset (ideal, realistic) then keys "
+                        "over it, landmark_spacing=N (cells; 0 none) and goal_pads=0|1 (default: the camera "
+                        "preset's namesake)")
+    p.add_argument("--wobble", type=float, default=None, metavar="DEG",
+                   help="its vehicle's roll and pitch wobble in a hover, degrees (default: 0.3 with the realistic "
+                        "camera, 0 with the ideal one)")
     p.add_argument("--camera-mavlink", default=None, metavar="URL",
                    help="also a MAVLink camera component (Camera Protocol v2) on a link of its own, e.g. "
                         "udpout:127.0.0.1:14560; its images served over HTTP on --mavlink-bind")
@@ -78,6 +87,7 @@ SPEC_FIELDS = {
     "--map": lambda s: s.map, "--robots": lambda s: s.robots, "--seed": lambda s: s.seed,
     "--connectivity": lambda s: s.planning.connectivity, "--time-scale": lambda s: s.vehicle.time_scale,
     "--camera": lambda s: s.camera.model, "--mavlink-bind": lambda s: s.vehicle.mavlink_bind,
+    "--scen": lambda s: s.scen, "--scene": lambda s: s.scene.text(), "--wobble": lambda s: s.vehicle.wobble_deg,
     "--fault": lambda s: s.faults_for(WORLD),
 }
 
@@ -99,11 +109,14 @@ def config_from_args(args: argparse.Namespace) -> WorldConfig:
     if args.autopilot_origin is not None and not follow:
         raise UavRobotsError("--autopilot-origin places a followed autopilot: give --autopilot-pose URL too")
     camera_model_from(args.camera, DRONE_CAMERA)   # every value checked before anything starts
+    preset = camera_preset(args.camera)
+    wobble = WOBBLE_OF_CAMERA_PRESET[preset] if args.wobble is None else args.wobble
     faults = world_faults(args.fault)
     cfg = WorldConfig(fleet=args.fleet, map=args.map, robots=args.robots, seed=args.seed, scen=args.scen,
                       connectivity=args.connectivity, cell_size_m=args.cell_size, home_lat=home[0],
                       home_lon=home[1], home_alt_m=home[2], mavlink=mav, time_scale=args.time_scale,
-                      camera={**DRONE_CAMERA, **camera_options(args.camera)}, connect=args.connect, listen=args.listen,
+                      camera={**DRONE_CAMERA, **camera_options(args.camera)}, scene=scene_options(args.scene, preset),
+                      wobble_deg=wobble, connect=args.connect, listen=args.listen,
                       zenoh_config=args.zenoh_config, move_batch_timeout_s=args.move_timeout,
                       slip=faults.slip, skids=faults.skids, gcs=args.gcs, mavlink_key=args.mavlink_key,
                       mavlink_bind=args.mavlink_bind, camera_mavlink=_none(args.camera_mavlink),

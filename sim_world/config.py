@@ -7,6 +7,7 @@ from typing import Any
 
 from protocol.errors import MissionError, UavRobotsError
 from protocol.keys import Keys
+from protocol.run_spec import SceneSpec
 from scenarios.limits import check_fleet
 
 # PX4 SITL's default home: a field near Zurich. The grid's top-left corner is there.
@@ -39,6 +40,9 @@ class WorldConfig:
     autopilot_origin: tuple[float, float, float] | None = None
     time_scale: float = 1.0
     camera: dict[str, Any] = field(default_factory=dict)  # sim_world.camera.CameraModel fields
+    # The floor's marks (scenarios/scene.py); by default the plain floor of the default (ideal) camera.
+    scene: SceneSpec = field(default_factory=lambda: SceneSpec(landmark_spacing=0, goal_pads=False))
+    wobble_deg: float = 0.0           # its vehicle's hover wobble (amplitude)
     camera_height_m: float = 0.3      # lens above the floor when the vehicle sits on it
     connect: list[str] = field(default_factory=list)
     listen: list[str] = field(default_factory=list)
@@ -75,7 +79,7 @@ class WorldConfig:
             raise UavRobotsError("--gcs and --mavlink-key need a vehicle (--mavlink is none)")
 
 
-def vehicle_config(cfg: WorldConfig, hover_wobble_deg: float = 0.0) -> Any:
+def vehicle_config(cfg: WorldConfig) -> Any:
     """The vehicle's configuration, checked (links, bind address, signing key): one-line errors."""
     from .vehicle.config import VehicleConfig, read_signing_key
 
@@ -86,7 +90,7 @@ def vehicle_config(cfg: WorldConfig, hover_wobble_deg: float = 0.0) -> Any:
         return VehicleConfig(url=cfg.mavlink or "udpout:127.0.0.1:14540", home_lat=cfg.home_lat,
                              home_lon=cfg.home_lon, home_alt_m=cfg.home_alt_m, time_scale=cfg.time_scale,
                              gcs_url=cfg.gcs, signing_key=key, bind_host=cfg.mavlink_bind,
-                            hover_wobble_deg=hover_wobble_deg, seed=cfg.seed)
+                             hover_wobble_deg=cfg.wobble_deg, seed=cfg.seed)
     except MissionError as exc:
         raise UavRobotsError(str(exc)) from None
 

@@ -75,7 +75,7 @@ class World(WorldCamera, Lifecycle):
         except TypeError as exc:
             raise UavRobotsError(f"camera options: {exc}") from None
         from .camera import PoseEstimator, prepare, scene_landmarks
-        self.landmarks = scene_landmarks(self.truth.free, cfg.cell_size_m, self.camera_model)
+        self.landmarks = scene_landmarks(self.truth.free, cfg.cell_size_m, cfg.scene.landmark_spacing)
         self.estimator = PoseEstimator(self.camera_model, cfg.seed)
         # The lens and noise tables take seconds at 12 MP: built on the camera's thread while the
         # vehicle takes off, so the first image is not late; a world that stops leaves them unbuilt.
@@ -85,7 +85,7 @@ class World(WorldCamera, Lifecycle):
             self.follower = PoseFollower(cfg.autopilot_pose, cfg.autopilot_origin, cfg.mavlink_bind, self.warn).start()
         elif cfg.mavlink:
             from .vehicle import Vehicle
-            self.vehicle = Vehicle(vehicle_config(cfg, hover_wobble_deg=self.camera_model.wobble_deg))
+            self.vehicle = Vehicle(vehicle_config(cfg))
             # The geofence must not cut off part of a large floor: the farthest corner, with a margin.
             reach = fence_reach_m(self.truth.free.shape, cfg.cell_size_m)
             if reach > self.vehicle.param("GF_MAX_HOR_DIST"):

@@ -5,9 +5,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from protocol.mapfile import Cell, read_scen
-from scenarios.limits import check_floor
-from scenarios.maps import place, resolve_map
+from protocol.mapfile import Cell
+from scenarios.floor import setup_floor
 
 from .config import WorldConfig
 
@@ -20,11 +19,5 @@ class Truth:
 
 
 def build_truth(cfg: WorldConfig) -> Truth:
-    name, free = resolve_map(cfg.map, cfg.seed, check_floor)
-    if cfg.scen:
-        agents = read_scen(cfg.scen, free, cfg.robots)
-        starts, goals = [a.start for a in agents], [a.goal for a in agents]
-    else:
-        placement = place(free, cfg.robots, cfg.seed)
-        starts, goals = placement.starts, placement.goals
-    return Truth(name, free, {i: c for i, c in enumerate(starts)}, list(goals))
+    floor = setup_floor(cfg.map, cfg.seed, cfg.robots, cfg.scen)
+    return Truth(floor.name, floor.free, dict(enumerate(floor.starts)), floor.goals)

@@ -123,20 +123,13 @@ def add_vehicle_arguments(p: argparse.ArgumentParser) -> None:
     add_spec_argument(p)
 
 
-# What the vehicle takes from a run's spec (`--spec OUT/run.json`); its hover wobble is the camera's
-# (a preset's `wobble_deg`: the body the camera is fixed to wobbles).
+# What the vehicle takes from a run's spec (`--spec OUT/run.json`).
 SPEC_FIELDS = {
     "--time-scale": lambda s: s.vehicle.time_scale, "--seed": lambda s: s.seed, "--preset": lambda s: s.vehicle.preset,
     "--gcs": lambda s: s.vehicle.gcs, "--mavlink-key": lambda s: s.vehicle.mavlink_key,
-    "--mavlink-bind": lambda s: s.vehicle.mavlink_bind, "--wobble": lambda s: camera_wobble_deg(s.camera.model),
+    "--mavlink-bind": lambda s: s.vehicle.mavlink_bind, "--wobble": lambda s: s.vehicle.wobble_deg,
     "--fault": lambda s: s.faults_for(VEHICLE),
 }
-
-
-def camera_wobble_deg(camera: str) -> float:
-    from .camera.model import CameraModel, camera_options
-
-    return CameraModel(**camera_options(camera)).wobble_deg
 
 
 def vehicle_config_from_args(args: argparse.Namespace) -> Any:

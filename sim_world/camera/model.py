@@ -41,14 +41,13 @@ KEYS: dict[str, tuple[Any, str]] = {
                           "white noise; altitude a quarter of it), metres"),
     "yaw_sigma_deg": (0.0, "1-sigma error of the published yaw (drifting bias plus white noise), degrees"),
     "attitude_sigma_deg": (0.0, "1-sigma white error of the published roll and pitch, degrees"),
-    "wobble_deg": (0.0, "hover wobble of the vehicle's roll and pitch (amplitude), degrees"),
     "gimbal": (1, "1: the camera is stabilised, level whatever the vehicle's attitude (today's camera); "
                   "0: fixed to the body, it sees the floor through the vehicle's roll and pitch"),
-    "landmark_spacing": (0, "cells between the surveyed landmarks the world places (0 = none)"),
-    "goal_pads": (0, "1: goals are green pads of 0.96 cell and robots white 0.8-cell bodies, so a robot on a "
-                     "goal leaves a green frame; 0: goal discs and full-cell robot tags (a robot hides its goal)"),
 }
-INT_KEYS = frozenset({"width", "height", "jpeg_quality", "landmark_spacing", "goal_pads", "gimbal"})
+INT_KEYS = frozenset({"width", "height", "jpeg_quality", "gimbal"})
+# Keys the camera once carried: where they live now (the floor's marks are the scene's, the wobble the vehicle's).
+MOVED = {"landmark_spacing": "the scene's: --scene landmark_spacing=N", "goal_pads": "the scene's: --scene goal_pads=0|1",
+         "wobble_deg": "the vehicle's: --wobble DEG"}
 
 PRESETS: dict[str, dict[str, float]] = {
     "ideal": {},
@@ -56,8 +55,7 @@ PRESETS: dict[str, dict[str, float]] = {
     # and a rangefinder, a rolling hover, a compressed video-grade stream.
     "realistic": {"k1": -0.05, "k2": 0.01, "p1": 0.0003, "p2": -0.0002, "vignetting": 0.3, "lighting": 0.15,
                   "lighting_angle_deg": 30.0, "exposure_ms": 4.0, "noise_std": 3.0, "jpeg_quality": 90,
-                  "pose_sigma_m": 0.2, "yaw_sigma_deg": 1.5, "attitude_sigma_deg": 0.2, "wobble_deg": 0.3,
-                  "gimbal": 0, "landmark_spacing": 12, "goal_pads": 1},
+                  "pose_sigma_m": 0.2, "yaw_sigma_deg": 1.5, "attitude_sigma_deg": 0.2, "gimbal": 0},
 }
 # The world's camera when --camera names no preset (`--camera ideal` gives the perfect one).
 DEFAULT_CAMERA_PRESET = "realistic"
@@ -78,7 +76,6 @@ class CameraModel:
     blur_sigma: float = 0.0
     lighting: float = 0.0
     lighting_angle_deg: float = 0.0
-    landmark_spacing: int = 0
     k1: float = 0.0
     k2: float = 0.0
     p1: float = 0.0
@@ -90,8 +87,6 @@ class CameraModel:
     pose_sigma_m: float = 0.0
     yaw_sigma_deg: float = 0.0
     attitude_sigma_deg: float = 0.0
-    wobble_deg: float = 0.0
-    goal_pads: int = 0
     gimbal: int = 1
 
     def __post_init__(self) -> None:
@@ -117,20 +112,17 @@ class CameraModel:
             raise MissionError("camera: noise_std and blur_sigma must be >= 0 and lighting in [0, 1)")
         if not 0.0 <= self.vignetting < 1.0:
             raise MissionError(f"camera: vignetting {self.vignetting} is not in [0, 1)")
-        for name in ("exposure_ms", "pose_sigma_m", "yaw_sigma_deg", "attitude_sigma_deg", "wobble_deg"):
+        for name in ("exposure_ms", "pose_sigma_m", "yaw_sigma_deg", "attitude_sigma_deg"):
             if getattr(self, name) < 0:
                 raise MissionError(f"camera: {name} must be >= 0, got {getattr(self, name)}")
-        if self.exposure_ms > 1000 or self.wobble_deg > 30 or self.attitude_sigma_deg > 30 or self.yaw_sigma_deg > 180:
-            raise MissionError("camera: exposure_ms is at most 1000, wobble_deg and attitude_sigma_deg at most 30, "
+        if self.exposure_ms > 1000 or self.attitude_sigma_deg > 30 or self.yaw_sigma_deg > 180:
+            raise MissionError("camera: exposure_ms is at most 1000, attitude_sigma_deg at most 30, "
                                "yaw_sigma_deg at most 180")
-        for name, lo, hi in (("jpeg_quality", 0, 100), ("landmark_spacing", 0, 10_000), ("goal_pads", 0, 1),
-                             ("gimbal", 0, 1)):
+        for name, lo, hi in (("jpeg_quality", 0, 100), ("gimbal", 0, 1)):
             v = getattr(self, name)
             if v != int(v) or not lo <= v <= hi:
                 raise MissionError(f"camera: {name} {v} is not a whole number in [{lo}, {hi}]")
             object.__setattr__(self, name, int(v))
-        if 0 < self.landmark_spacing < 4:
-            raise MissionError(f"camera: landmark_spacing {self.landmark_spacing} is not 0 (none) or >= 4 cells")
         if max(abs(self.k1), abs(self.k2), abs(self.k3)) > 1.0 or max(abs(self.p1), abs(self.p2)) > 0.1:
             raise MissionError("camera: distortion beyond a real lens (|k1|, |k2|, |k3| <= 1, |p1|, |p2| <= 0.1)")
         self._check_distortion_monotonic()
@@ -177,6 +169,8 @@ def camera_options(text: str) -> dict[str, Any]:
         if not sep:
             why = "a preset comes first" if key in PRESETS else "not name=number"
             raise UavRobotsError(f"--camera {text!r}: {part!r}: {why}")
+        if key in MOVED:
+            raise UavRobotsError(f"--camera {text!r}: {key} is not the camera's but {MOVED[key]}")
         if key not in KEYS:
             raise UavRobotsError(f"--camera {text!r}: unknown key {key!r} (keys: {', '.join(KEYS)})")
         try:
@@ -187,6 +181,12 @@ def camera_options(text: str) -> dict[str, Any]:
             raise UavRobotsError(f"--camera {text!r}: {part!r} is not a finite number")
         out[key] = int(num) if key in INT_KEYS and num == int(num) else num
     return out
+
+
+def camera_preset(text: str) -> str:
+    """The preset `--camera` text starts from (DEFAULT_CAMERA_PRESET when it names none)."""
+    first = (text or "").split(",", 1)[0].strip()
+    return first if first and "=" not in first else DEFAULT_CAMERA_PRESET
 
 
 def camera_model_from(text: str, base: dict[str, Any] | None = None) -> CameraModel:

@@ -392,7 +392,7 @@ def cell_centre_ned(cell: Cell, cell_size_m: float) -> tuple[float, float]:
     return -(y + 0.5) * cell_size_m, (x + 0.5) * cell_size_m
 
 
-def scene_landmarks(free: np.ndarray, cell_size_m: float, model: CameraModel) -> LandmarkSet | None:
-    """The surveyed landmarks the world places for this camera (None: landmark_spacing 0)."""
+def scene_landmarks(free: np.ndarray, cell_size_m: float, spacing: int) -> LandmarkSet | None:
+    """The surveyed landmarks the world places every `spacing` cells (None: 0, none)."""
     from scenarios.landmarks import place_landmarks
-    return place_landmarks(free, cell_size_m, model.landmark_spacing) if model.landmark_spacing else None
+    return place_landmarks(free, cell_size_m, spacing) if spacing else None

@@ -9,6 +9,10 @@ from protocol.errors import MissionError
 from protocol.geo import check_home
 
 
+# A run's hover wobble when it names none: the realistic camera's drone rolls gently in a hover (a
+# camera fixed to its body sees it), the ideal one holds still.
+WOBBLE_OF_CAMERA_PRESET = {"ideal": 0.0, "realistic": 0.3}
+
 @dataclass(frozen=True)
 class VehicleConfig:
     """How the simulated vehicle is reached and how it flies.

@@ -12,13 +12,15 @@ from hypothesis import given, strategies as st
 
 from protocol.errors import UavRobotsError
 from protocol.faults import CATALOGUE, ROBOTS, VEHICLE, WORLD, Fault, help_line, parse_fault, split_faults, usage
-from protocol.run_spec import (CameraSpec, LimitsSpec, PlanningSpec, RunSpec, VehicleSpec, add_spec_argument,
+from protocol.run_spec import (CameraSpec, LimitsSpec, PlanningSpec, RunSpec, SceneSpec, VehicleSpec, add_spec_argument,
                                apply_spec, given_flags, read_spec, spec_from_dict)
 
 
 def a_spec() -> RunSpec:
-    return RunSpec(map="warehouse-450", robots=50, seed=7, camera=CameraSpec("mavlink", "ideal,blur_sigma=2"),
-                   vehicle=VehicleSpec(preset="indoor", time_scale=5.0), faults=("crash:3@10", "slip:0.05"),
+    return RunSpec(map="warehouse-450", robots=50, seed=7, scen="floor.scen",
+                   camera=CameraSpec("mavlink", "ideal,blur_sigma=2"), scene=SceneSpec(landmark_spacing=8, goal_pads=False),
+                   vehicle=VehicleSpec(preset="indoor", time_scale=5.0, wobble_deg=1.0),
+                   faults=("crash:3@10", "slip:0.05"),
                    planning=PlanningSpec(planner="pibt", assign="greedy", connectivity=8, time_limit_s=30.0,
                                          fallback=False),
                    limits=LimitsSpec(tick_timeout_s=4.0, monitor_every=0))
@@ -38,6 +40,8 @@ def test_a_spec_is_read_back_exactly(tmp_path):
     ({"camera": {"source": "telepathy"}}, "camera.source is 'telepathy'"),
     ({"vehicle": {"preset": "underwater"}}, "vehicle.preset"),
     ({"camera": {"lens": "fisheye"}}, "lens"),
+    ({"scene": {"goal_pads": 2}}, "scene.goal_pads is 2, not bool"),
+    ({"scen": 3}, "scen is 3"),
     ({"faults": ["fly:1"]}, "--fault 'fly:1'"),
     ({"format": "something/2"}, "format"),
     ({"colour": "red"}, "colour"),
@@ -109,6 +113,8 @@ def _uav_robots(argv: list[str], timeout: float) -> subprocess.CompletedProcess:
 @pytest.mark.parametrize("spec, words", [
     ({"robots": "eight"}, "robots is 'eight'"),
     ({"planning": {"assign": "magic"}}, "--assign 'magic': one of"),   # the command's own choices, checked
+    ({"scene": {"landmark_spacing": 2}}, "--scene 'landmark_spacing=2,goal_pads=1': landmark_spacing 2 is not 0"),
+    ({"vehicle": {"wobble_deg": 45.0}}, "--wobble must be a number in [0, 30]"),
 ])
 def test_a_bad_spec_file_is_one_line_and_exit_2(tmp_path, spec, words):
     (tmp_path / "run.json").write_text(json.dumps({"format": "uav-robots-run/1", **spec}))
@@ -120,15 +126,28 @@ def test_a_bad_spec_file_is_one_line_and_exit_2(tmp_path, spec, words):
 @pytest.mark.slow
 @pytest.mark.process
 def test_a_run_is_repeated_from_its_spec(tmp_path):
-    """`run --spec OUT/run.json` repeats the run: the same spec (seed, faults, planner), the same plan,
-    and report.json carries the spec; a flag given beside --spec still wins."""
+    """`run --spec OUT/run.json` repeats the run: the same spec (seed, scenario, scene, faults, planner),
+    the same plan, and report.json carries the spec; a flag given beside --spec still wins."""
+    from protocol.mapfile import ScenAgent, write_scen
+    from scenarios.maps import place, resolve_map
+
+    _, free = resolve_map("warehouse-small")
+    placed = place(free, 4, 11)
+    write_scen(tmp_path / "four.scen", "warehouse-small", free,
+               [ScenAgent(s, g, 0.0) for s, g in zip(placed.starts, placed.goals)])
     first, again = tmp_path / "first", tmp_path / "again"
-    res = _uav_robots(["run", "--robots", "4", "--seed", "5", "--fault", "crash:2@3", "--planner", "pibt",
-                       "--camera", "ideal", "--out", str(first), "--quiet"], 300)
+    res = _uav_robots(["run", "--robots", "4", "--seed", "5", "--fault", "crash:0@3", "--planner", "pibt",
+                       "--camera", "ideal", "--scene", "landmark_spacing=8", "--wobble", "0.5",
+                       "--scen", str(tmp_path / "four.scen"), "--out", str(first), "--quiet"], 300)
     assert res.returncode == 3, res.stderr[-2000:]
     spec = read_spec(first / "run.json")
-    assert (spec.robots, spec.seed, spec.faults, spec.planning.planner) == (4, 5, ("crash:2@3",), "pibt")
-    assert json.loads((first / "report.json").read_text())["run"] == spec.as_dict()
+    assert (spec.robots, spec.seed, spec.faults, spec.planning.planner) == (4, 5, ("crash:0@3",), "pibt")
+    assert (spec.scene, spec.vehicle.wobble_deg) == (SceneSpec(landmark_spacing=8, goal_pads=False), 0.5)
+    report = json.loads((first / "report.json").read_text())
+    assert report["run"] == spec.as_dict()
+    # The scenario's starts, and the scene's landmarks that the ideal camera's floor would not have.
+    assert [tuple(report["truth"]["robots"][str(i)]) for i in range(4)] == placed.starts
+    assert report["perceived"]["registration"]["by_landmarks"] >= 1
     res = _uav_robots(["run", "--spec", str(first / "run.json"), "--out", str(again), "--quiet"], 300)
     assert res.returncode == 3, res.stderr[-2000:]
     assert (again / "run.json").read_text() == (first / "run.json").read_text()

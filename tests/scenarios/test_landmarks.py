@@ -8,6 +8,7 @@ import pytest
 from protocol.codec import decode, encode
 from protocol.errors import MapError
 from protocol.messages import WorldInfo, WorldInfoRequest
+from protocol.run_spec import SceneSpec
 from protocol.transport import MemoryBus, MemoryTransport
 from scenarios.landmarks import LANDMARK_IDS, place_landmarks
 from scenarios.maps import random_map, resolve_map
@@ -131,7 +132,7 @@ def test_the_world_publishes_its_landmarks_when_the_camera_asks_for_them(tmp_pat
     _, free = resolve_map("warehouse-small")
     bus = MemoryBus()
     for spacing, expect in ((0, False), (12, True)):
-        world = World(WorldConfig(fleet="t", robots=2, mavlink=None, camera={"landmark_spacing": spacing}),
+        world = World(WorldConfig(fleet="t", robots=2, mavlink=None, scene=SceneSpec(landmark_spacing=spacing)),
                       MemoryTransport(bus))
         world.start()
         client = MemoryTransport(bus)

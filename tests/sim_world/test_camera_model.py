@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from protocol.errors import UavRobotsError
+from protocol.run_spec import SceneSpec
 from scenarios.landmarks import place_landmarks
 from scenarios.maps import place, resolve_map
 from sim_world.camera import (DEFAULT_CAMERA_PRESET, KEYS, PRESETS, CameraModel, PoseEstimator, Scene, VehicleView,
@@ -293,7 +294,7 @@ def test_presets_and_keys_combine_and_every_key_has_a_default():
     assert camera_options("ideal") == {} and camera_model_from("ideal") == CameraModel()
     real = camera_model_from("realistic")
     assert (real.pose_sigma_m, real.yaw_sigma_deg, real.k1, real.jpeg_quality) == (0.2, 1.5, -0.05, 90)
-    assert real.noise_std == 3.0 and real.exposure_ms == 4.0 and real.vignetting > 0 and real.wobble_deg > 0
+    assert real.noise_std == 3.0 and real.exposure_ms == 4.0 and real.vignetting > 0 and real.gimbal == 0
     mixed = camera_model_from("realistic,blur_sigma=2,jpeg_quality=0")
     assert mixed.blur_sigma == 2 and mixed.jpeg_quality == 0 and mixed.k1 == -0.05
     assert camera_model_from("blur_sigma=1.5") == CameraModel(**{**PRESETS["realistic"], "blur_sigma": 1.5})  # over the default
@@ -315,7 +316,9 @@ def test_presets_and_keys_combine_and_every_key_has_a_default():
     ("k1=0.9,k2=-1", "folds"),
     ("pose_sigma_m=-1", "pose_sigma_m"),
     ("exposure_ms=nan", "finite"),
-    ("landmark_spacing=2", "landmark_spacing"),
+    ("landmark_spacing=12", "not the camera's but the scene's: --scene landmark_spacing=N"),
+    ("goal_pads=1", "the scene's"),
+    ("realistic,wobble_deg=1", "not the camera's but the vehicle's: --wobble DEG"),
 ])
 def test_bad_camera_values_are_one_line_errors(text, words):
     with pytest.raises(UavRobotsError, match=words):
@@ -369,8 +372,29 @@ def test_a_robot_on_a_goal_leaves_a_green_frame_around_its_readable_marker(yaw):
     assert side == pytest.approx(0.8 * 6 / 7, abs=0.03)
 
 
-def test_the_realistic_world_uses_the_pad_layout_and_the_ideal_one_todays():
-    assert camera_model_from("realistic").goal_pads == 1 and camera_model_from("ideal").goal_pads == 0
+def test_a_scene_not_named_is_the_camera_presets_namesake():
+    from protocol.run_spec import SceneSpec
+    from scenarios.scene import scene_options
+    from sim_world.camera.model import camera_preset
+
+    assert camera_preset("") == camera_preset("blur_sigma=2") == "realistic" and camera_preset("ideal,k1=0.1") == "ideal"
+    assert scene_options("", camera_preset("")) == SceneSpec(landmark_spacing=12, goal_pads=True)
+    assert scene_options("", camera_preset("ideal")) == SceneSpec(landmark_spacing=0, goal_pads=False)
+    assert scene_options("ideal,landmark_spacing=8", "realistic") == SceneSpec(landmark_spacing=8, goal_pads=False)
+    spec = SceneSpec(landmark_spacing=20, goal_pads=False)
+    assert scene_options(spec.text(), "realistic") == spec
+
+
+@pytest.mark.parametrize("text, words", [
+    ("marble", "unknown preset 'marble'"), ("landmark_spacing=2", "landmark_spacing 2 is not 0"),
+    ("goal_pads=2", "goal_pads is 0 or 1"), ("shelves=3", "unknown key 'shelves'"),
+    ("landmark_spacing=1.5", "not name=whole number"),
+])
+def test_bad_scene_values_are_one_line_errors(text, words):
+    from scenarios.scene import scene_options
+
+    with pytest.raises(UavRobotsError, match=words):
+        scene_options(text)
 
 
 def test_a_gimballed_camera_stays_level_and_a_body_fixed_one_tilts_with_the_vehicle():
@@ -406,7 +430,8 @@ def test_a_realistic_world_serves_jpeg_frames_with_an_estimated_pose_and_its_lan
 
     bus = MemoryBus()
     camera = {**camera_options("realistic"), "width": 1200, "height": 900}
-    world = World(WorldConfig(fleet="t", robots=4, mavlink=None, camera=camera, seed=5), MemoryTransport(bus))
+    world = World(WorldConfig(fleet="t", robots=4, mavlink=None, camera=camera, scene=SceneSpec(), seed=5),
+                  MemoryTransport(bus))
     world.start()
     client = MemoryTransport(bus)
     try:

@@ -21,6 +21,10 @@ pytestmark = pytest.mark.process   # every test here starts a process
     (["--camera", "width=abc"], "not name=number"),
     (["--fault", "liar:99"], "no robot 99"),
     (["--planner", "warp"], "unknown planner"),
+    (["--scene", "landmark_spacing=2"], "landmark_spacing 2 is not 0"),
+    (["--camera", "goal_pads=1"], "goal_pads is not the camera's but the scene's"),
+    (["--wobble", "40"], "--wobble must be"),
+    (["--scen", "no-such.scen"], "no-such.scen"),
 ])
 def test_bad_input_is_one_line_before_anything_starts(args, words):
     run = subprocess.run([sys.executable, "-m", "uav_robots", "run", *args], capture_output=True, text=True,
@@ -29,6 +33,18 @@ def test_bad_input_is_one_line_before_anything_starts(args, words):
     assert run.stdout == "", "a process was started or a header printed before the check"
     lines = run.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and words in lines[0], lines
+
+
+def test_a_scenario_of_another_map_names_that_map(tmp_path):
+    from protocol.mapfile import ScenAgent, write_scen
+    from scenarios.maps import resolve_map
+
+    _, free = resolve_map("random:width=16,height=16,density=0.1")
+    write_scen(tmp_path / "other.scen", "random-16", free, [ScenAgent((0, 0), (1, 1), 1.0)] * 8)
+    run = subprocess.run([sys.executable, "-m", "uav_robots", "run", "--scen", str(tmp_path / "other.scen")],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1, run.stderr
+    assert "is for the map 'random-16' of 16x16 cells, not this 24x18 floor" in run.stderr, run.stderr
 
 
 def test_an_out_that_is_a_file_is_refused(tmp_path):

@@ -29,7 +29,9 @@ CASES = {
 
 def bench(map_spec: str, robots: int, rounds: int) -> list[dict]:
     from scenarios.maps import place, resolve_map
+    from scenarios.scene import scene_options
     from sim_world.camera import PoseEstimator, Scene, VehicleView, camera_model_from, capture_frame, scene_landmarks
+    from sim_world.camera.model import camera_preset
     from sim_world.config import DRONE_CAMERA
     from uav_agent.survey import survey_poses
 
@@ -39,8 +41,9 @@ def bench(map_spec: str, robots: int, rounds: int) -> list[dict]:
     setups = {}
     for name, text in CASES.items():
         model = camera_model_from(text, DRONE_CAMERA)
-        scene = Scene(free, dict(enumerate(p.starts)), p.goals, scene_landmarks(free, 1.0, model),
-                      goal_pads=bool(model.goal_pads))
+        marks = scene_options("", camera_preset(text))
+        scene = Scene(free, dict(enumerate(p.starts)), p.goals, scene_landmarks(free, 1.0, marks.landmark_spacing),
+                      goal_pads=marks.goal_pads)
         poses = survey_poses(w, h, 1.0, model)
         speed = 5.0 if "moving" in name else 0.0
         t0 = time.perf_counter()

@@ -26,7 +26,9 @@ from typing import Any
 import numpy as np
 
 from protocol.errors import UavRobotsError
+from protocol.run_spec import SceneSpec
 from scenarios.maps import place, resolve_map
+from scenarios.scene import scene_options
 from sim_world.camera import PRESETS, CameraModel, PoseEstimator, Scene, VehicleView, capture_frame, scene_landmarks
 from sim_world.config import DRONE_CAMERA
 from uav_agent.mission import MissionConfig
@@ -68,11 +70,13 @@ class Row:
     error: str = ""
 
 
-def bench_scene(spec: str, robots: int, model: CameraModel) -> Scene:
+def bench_scene(spec: str, robots: int, marks: SceneSpec | None = None) -> Scene:
+    """The floor `spec` with `robots` placed, laid out as the realistic scene (or `marks`)."""
+    marks = marks or scene_options("", "realistic")
     _, free = resolve_map(spec, 0)
     p = place(free, robots, 1)
     return Scene(free, {(i * 37 + 3) % 1000: c for i, c in enumerate(p.starts)}, p.goals,
-                 scene_landmarks(free, CELL, model), goal_pads=bool(model.goal_pads))
+                 scene_landmarks(free, CELL, marks.landmark_spacing), goal_pads=marks.goal_pads)
 
 
 def landmarks_of(scene: Scene) -> Landmarks | None:
@@ -165,7 +169,7 @@ def run_case(name: str, spec: str, robots: int, label: str, over: dict[str, floa
              survey_tilt_deg: float = 0.0) -> Row:
     try:
         model = CameraModel(**{**camera, **PRESETS["realistic"], **over})
-        scene = bench_scene(spec, robots, model)
+        scene = bench_scene(spec, robots)
         wm, images, seconds = simulate(scene, model, survey_tilt_deg=survey_tilt_deg)
         c, r, g = score(wm, scene)
         reg = sum(f.source == "landmarks" for f in wm.frames)

@@ -23,6 +23,9 @@ def add_run_parser(sub) -> None:
     p.add_argument("--map", default="warehouse-small", help=f"{MAP_HELP} (default: warehouse-small)")
     p.add_argument("--robots", type=int, default=8, help="number of robots (default 8)")
     p.add_argument("--seed", type=int, default=0, help="seed of the placement (and random maps)")
+    p.add_argument("--scen", default=None, metavar="FILE",
+                   help="take the robots' starts and goals from a MovingAI .scen for the map (its first --robots "
+                        "lines) instead of placing them by the seed")
     p.add_argument("--out", help="directory for report.json, overhead.png, paths.png, replay.gif, mission.mcap, "
                                  "replay.mp4, report.html, logs/ (an earlier run's there are removed first)")
     add_planning_arguments(p)
@@ -33,6 +36,10 @@ def add_run_parser(sub) -> None:
                    help="the world's camera: a preset (ideal, realistic) then keys over it, e.g. 'ideal', "
                         "'realistic,blur_sigma=2' or 'ideal,width=1280,height=960,noise_std=6' (default: the "
                         "realistic 4000x3000, 90 deg camera; every key in docs/camera-and-perception.md)")
+    p.add_argument("--scene", default="", metavar="[PRESET,]K=V,...",
+                   help="what the world lays on the floor for the camera: a preset (ideal: goal discs, no "
+                        "landmarks; realistic: goal pads, a surveyed landmark every 12 cells) then keys over it, "
+                        "e.g. 'landmark_spacing=8' (default: the camera preset's namesake)")
     add_ground_station_arguments(p)
     p.add_argument("--autopilot", default=None, metavar="URL",
                    help="fly whatever autopilot answers on this MAVLink link (the UAV's: PX4 SITL's API port, "
@@ -46,6 +53,9 @@ def add_run_parser(sub) -> None:
     p.add_argument("--vehicle-preset", choices=("outdoor", "indoor"), default="outdoor",
                    help="our vehicle as an outdoor PX4 (GPS, a home; default) or an indoor one (no GPS: the UAV "
                         "flies its local frame in offboard, the world places it by its local origin)")
+    p.add_argument("--wobble", type=float, default=None, metavar="DEG",
+                   help="our vehicle's roll and pitch wobble in a hover, degrees (default: 0.3 with the realistic "
+                        "camera, 0 with the ideal one)")
     p.add_argument("--camera-source", choices=("zenoh", "mavlink", "video"), default="zenoh",
                    help="how the UAV takes its images: zenoh (the world's world/camera query, default), mavlink "
                         "(the world's camera as a MAVLink camera: capture commands, images over HTTP) or video "
@@ -105,10 +115,11 @@ def check_arguments(args) -> tuple[str, object]:
     """Every input of `run`, checked before any process starts: one line and exit 2 for the first bad one."""
     from protocol.bounds import MAX_ROBOTS
     from protocol.faults import parse_fault
-    from scenarios.limits import check_fleet, check_floor
-    from scenarios.maps import place, resolve_map
+    from scenarios.floor import setup_floor
+    from scenarios.limits import check_fleet
     from sim_world.camera import CameraModel
-    from sim_world.camera.model import camera_options
+    from scenarios.scene import scene_options
+    from sim_world.camera.model import camera_options, camera_preset
     from sim_world.config import DRONE_CAMERA, MOVE_BATCH_TIMEOUT_S, WorldConfig, vehicle_config
 
     _number("--robots", args.robots, 1, MAX_ROBOTS)
@@ -147,6 +158,9 @@ def check_arguments(args) -> tuple[str, object]:
         CameraModel(**{**DRONE_CAMERA, **camera_options(args.camera)})
     except (MissionError, TypeError) as exc:
         raise UavRobotsError(f"--camera {args.camera!r}: {exc}") from None
+    scene_options(args.scene, camera_preset(args.camera))
+    if args.wobble is not None:
+        _number("--wobble", args.wobble, 0, 30)
     if not args.autopilot:
         vehicle_config(WorldConfig(fleet="check", gcs=args.gcs, mavlink_key=args.mavlink_key,
                                    mavlink_bind=args.mavlink_bind))
@@ -174,6 +188,5 @@ def check_arguments(args) -> tuple[str, object]:
         if len(robot_groups(args.robots, args.robots_per_process)) > MAX_ROBOT_PROCESSES:
             raise UavRobotsError(f"--secure: at most {MAX_ROBOT_PROCESSES} robot processes (identities); "
                                  f"host more robots per process (--robots-per-process)")
-    name, free = resolve_map(args.map, args.seed, check_floor)
-    place(free, args.robots, args.seed)
-    return name, free
+    floor = setup_floor(args.map, args.seed, args.robots, args.scen)
+    return floor.name, floor.free

@@ -10,8 +10,9 @@ from protocol.run_spec import (RUN_JSON, CameraSpec, HostingSpec, LimitsSpec, Pl
 
 # Every flag of `run` a spec gives, when the command line does not.
 RUN_FIELDS = {
-    "--map": lambda s: s.map, "--robots": lambda s: s.robots, "--seed": lambda s: s.seed,
+    "--map": lambda s: s.map, "--robots": lambda s: s.robots, "--seed": lambda s: s.seed, "--scen": lambda s: s.scen,
     "--camera": lambda s: s.camera.model, "--camera-source": lambda s: s.camera.source,
+    "--scene": lambda s: s.scene.text(), "--wobble": lambda s: s.vehicle.wobble_deg,
     "--vehicle-preset": lambda s: s.vehicle.preset, "--time-scale": lambda s: s.vehicle.time_scale,
     "--autopilot": lambda s: s.vehicle.autopilot, "--autopilot-pose": lambda s: s.vehicle.autopilot_pose,
     "--autopilot-origin": lambda s: s.vehicle.autopilot_origin, "--gcs": lambda s: s.vehicle.gcs,
@@ -37,12 +38,20 @@ def _whole(path: str | None) -> str | None:
 
 
 def spec_of(args: argparse.Namespace) -> RunSpec:
-    """The checked arguments as a spec (the time scale resolved: 10 for our vehicle, 1 for another autopilot;
-    the files it names whole)."""
+    """The checked arguments as a spec (resolved: the time scale, 10 for our vehicle and 1 for another
+    autopilot; the scene and the wobble the camera preset's when not given; the files it names whole)."""
+    from scenarios.scene import scene_options
+    from sim_world.camera.model import camera_preset
+    from sim_world.vehicle.config import WOBBLE_OF_CAMERA_PRESET
+
+    preset = camera_preset(args.camera)
+    wobble = args.wobble if args.wobble is not None else WOBBLE_OF_CAMERA_PRESET[preset]
     return RunSpec(
-        map=_whole(args.map), robots=args.robots, seed=args.seed,
+        map=_whole(args.map), robots=args.robots, seed=args.seed, scen=_whole(args.scen),
         camera=CameraSpec(source=args.camera_source, model=args.camera),
-        vehicle=VehicleSpec(preset=args.vehicle_preset, time_scale=float(args.time_scale), autopilot=args.autopilot,
+        scene=scene_options(args.scene, preset),
+        vehicle=VehicleSpec(preset=args.vehicle_preset, time_scale=float(args.time_scale),
+                            wobble_deg=float(wobble), autopilot=args.autopilot,
                             autopilot_pose=args.autopilot_pose, autopilot_origin=args.autopilot_origin, gcs=args.gcs,
                             mavlink_key=_whole(args.mavlink_key), mavlink_bind=args.mavlink_bind),
         faults=tuple(f.strip() for f in args.fault),

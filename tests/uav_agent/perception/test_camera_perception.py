@@ -425,7 +425,7 @@ def test_a_frame_with_cells_far_over_the_needed_resolution_is_read_smaller_and_t
     from uav_robots.bench.perception import bench_scene, landmarks_of, score
 
     model = CameraModel(**{**DRONE_CAMERA, **PRESETS["realistic"]})
-    scene = bench_scene("warehouse-small", 8, model)
+    scene = bench_scene("warehouse-small", 8)
     h, w = scene.free.shape
     n, e, alt = survey_poses(w, h, 1.0, model, 20.0, border_px=180)[0]
     frame = capture_frame(scene, VehicleView(n, e, -alt, 0.0), model, 1.0, PoseEstimator(model, 0), 1.0, 0)

@@ -159,7 +159,7 @@ def test_the_missions_survey_and_closer_looks_read_everything(spec, robots, over
     """The mission's rules offline (bench perception's simulate): a first image measures the
     blur, the survey flies low enough for it, closer looks settle what stayed in doubt."""
     model = CameraModel(**{**PRESETS["realistic"], **over})
-    scene = bench_scene(spec, robots, model)
+    scene = bench_scene(spec, robots)
     wm, images, _ = simulate(scene, model)
     assert score(wm, scene) == (0, 0, 0), wm.warnings
     assert wm.unsure == []
@@ -266,7 +266,7 @@ def test_the_450_surveys_pad_layout_robots_read_by_the_detector_are_kept():
     from uav_agent.perception.occupancy import cells_in
 
     model = CameraModel(**{**DRONE_CAMERA, **PRESETS["realistic"]})
-    scene = bench_scene("warehouse-450", 50, model)
+    scene = bench_scene("warehouse-450", 50)
     marks = Landmarks(scene.landmarks.family, scene.landmarks.size_m, {})
     for lid, e, n in scene.landmarks.landmarks:
         marks.by_id[lid] = np.vstack([marks.by_id.get(lid, np.zeros((0, 2))), [[e, n]]])
@@ -317,7 +317,7 @@ def test_a_blurred_landmark_a_bit_or_two_off_is_still_read():
     from uav_agent.perception.registration import register
 
     model = CameraModel(**{**PRESETS["realistic"], **TARGET})
-    scene = bench_scene("random:width=64,height=64,density=0.2", 20, model)
+    scene = bench_scene("random:width=64,height=64,density=0.2", 20)
     marks = landmarks_of(scene)
     for seq in range(20, 40):   # seq seeds the image's noise: twenty draws
         frame = capture_frame(scene, VehicleView(-46.0, 50.0, -10.3, 0.0), model, CELL, PoseEstimator(model, 0), 80.0,
@@ -343,7 +343,7 @@ def test_an_arrival_image_of_a_region_shows_its_goals_and_enough_landmarks_and_r
     from uav_agent.region import MIN_LANDMARKS, region_for
 
     model = CameraModel(**{**DRONE_CAMERA, **PRESETS["realistic"]})
-    scene = bench_scene("warehouse-450", 50, model)
+    scene = bench_scene("warehouse-450", 50)
     marks = landmarks_of(scene)
     calibration = camera_frame((0.0, 0.0, -1.0), model, 0.0)
     pose = (-225.0, 225.0, 104.8)
@@ -397,7 +397,7 @@ def test_robots_parked_on_their_goals_are_read_through_the_target_degradation():
     from uav_agent.survey import covering
 
     model = CameraModel(**{**DRONE_CAMERA, **PRESETS["realistic"], **TARGET})
-    surveyed = bench_scene("warehouse-450", 50, model)
+    surveyed = bench_scene("warehouse-450", 50)
     ids = sorted(surveyed.robots)
     parked = Scene(surveyed.free, {r: surveyed.goals[i] for i, r in enumerate(ids)}, surveyed.goals,
                    surveyed.landmarks, goal_pads=surveyed.goal_pads)

@@ -71,7 +71,7 @@ def test_a_survey_taken_leaning_20_degrees_is_completed_by_level_closer_looks():
     """The 450 mission's failure in small: every survey image leans by the vehicle's tilt
     limit, footprints swing by a third of the altitude, cells between them go unseen."""
     model = CameraModel(**PRESETS["realistic"])
-    scene = bench_scene("random:width=40,height=40,density=0.2", 6, model)
+    scene = bench_scene("random:width=40,height=40,density=0.2", 6)
     wm, images, _ = simulate(scene, model, survey_tilt_deg=20.0)
     assert wm.unseen == 0 and wm.unsure == []
     assert score(wm, scene) == (0, 0, 0)
