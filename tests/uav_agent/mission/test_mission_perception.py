@@ -35,12 +35,4 @@ def test_default_map_at_the_target_degradation(tmp_path):
     _mission(tmp_path, "realistic,blur_sigma=2,lighting=0.5,noise_std=10,pose_sigma_m=0.5,yaw_sigma_deg=3",
              timeout=600)
 
-
-@pytest.mark.slow
-def test_the_450_floor_with_50_robots_at_the_target_degradation(tmp_path):
-    # Blur 2 sends the survey down to 47.6 m (35 images); the verification must read robots parked
-    # on their goals, inside the pads' green frames, and looks closer at any it saw nowhere.
-    report = _mission(tmp_path, "realistic,blur_sigma=2,lighting=0.5,noise_std=10,pose_sigma_m=0.5,yaw_sigma_deg=3",
-                      timeout=900, extra=["--map", "warehouse-450", "--robots", "50"])
-    assert all(report["verified"].values()) and report["uav"]["survey_px_per_cell"] > 30
-    assert not [e for e in report["events"] if e["kind"] == "done-contradicted"]
+# The 450 floor with 50 robots at the target degradation: tests/uav_robots/test_end_to_end.py's paper setting.

@@ -9,7 +9,7 @@ clock behind `time.perf_counter` on Linux, directly.
 from __future__ import annotations
 
 from llvmlite import ir
-from numba.core import cgutils, types
+from numba import types
 from numba.extending import intrinsic
 
 CLOCK_MONOTONIC = 1     # <time.h> on Linux
@@ -17,15 +17,20 @@ CLOCK_MONOTONIC = 1     # <time.h> on Linux
 
 @intrinsic
 def monotonic(typingctx):
-    """Seconds of CLOCK_MONOTONIC, as `time.perf_counter()` gives them."""
+    """Seconds of CLOCK_MONOTONIC, as `time.perf_counter()` gives them. Written in llvmlite's IR
+    alone: numba's public `intrinsic` is all it takes of numba (no helper of its internals)."""
     def codegen(context, builder, signature, args):
         i64, i32, f64 = ir.IntType(64), ir.IntType(32), ir.DoubleType()
         timespec = ir.LiteralStructType([i64, i64])
-        clock_gettime = cgutils.get_or_insert_function(
-            builder.module, ir.FunctionType(i32, [i32, timespec.as_pointer()]), "clock_gettime")
-        ts = cgutils.alloca_once(builder, timespec)
+        module = builder.module
+        fnty = ir.FunctionType(i32, [i32, timespec.as_pointer()])
+        clock_gettime = module.globals.get("clock_gettime") or ir.Function(module, fnty, "clock_gettime")
+        # In the entry block, as LLVM wants its allocas: a loop calling the clock does not grow the stack.
+        with builder.goto_entry_block():
+            ts = builder.alloca(timespec)
         builder.call(clock_gettime, [ir.Constant(i32, CLOCK_MONOTONIC), ts])
-        sec = builder.sitofp(builder.load(cgutils.gep_inbounds(builder, ts, 0, 0)), f64)
-        nsec = builder.sitofp(builder.load(cgutils.gep_inbounds(builder, ts, 0, 1)), f64)
+        zero = ir.Constant(i32, 0)
+        sec = builder.sitofp(builder.load(builder.gep(ts, [zero, zero], inbounds=True)), f64)
+        nsec = builder.sitofp(builder.load(builder.gep(ts, [zero, ir.Constant(i32, 1)], inbounds=True)), f64)
         return builder.fadd(sec, builder.fmul(nsec, ir.Constant(f64, 1e-9)))
     return types.float64(), codegen
