@@ -20,6 +20,6 @@ def world_faults(specs: list[str]) -> WorldFaults:
     for f in (parse_fault(s, WORLD) for s in specs):
         if f.kind == "skid":
             skids[f.robot] = f.tick
-        else:
+        elif f.kind == "slip":
             slip = f.p
     return WorldFaults(slip, skids)
