@@ -165,6 +165,8 @@ def _estimate_options(args: argparse.Namespace) -> dict:
     for f in (parse_fault(spec, VEHICLE) for spec in getattr(args, "fault", [])):
         if f.kind == "battery":
             options["battery_drop"] = (f.pct / 100.0, float(f.seconds))
+        elif f.kind == "mavlink":
+            options["link_loss"] = (float(f.seconds), float(f.duration))
     return options
 
 
