@@ -93,8 +93,8 @@ class Shots:
             return self._handled >= self._asked
 
     def drain(self, first: int | None = None) -> list[CameraFrame]:
-        """Every image so far (or the `first` so many), perceived; MissionError if one never came
-        or did not decode."""
+        """Every image so far (or the `first` so many), perceived (one that never came is in `missed`);
+        MissionError if one did not decode, or none came nor failed in time."""
         with self._cv:
             want = self._asked if first is None else min(first, self._asked)
             # Each image has its own query timeout, and perceiving one takes a second at most.

@@ -1,5 +1,6 @@
 """Images asked for on the move: replies taken in order, perceived off the caller's thread,
-images taken elsewhere or leaning set aside for a retake, a silent or garbled camera named.
+images taken elsewhere or leaning, never given (a dead camera) or given again (a frozen one) set
+aside for a retake, a garbled camera named.
 
 The whole path over Zenoh with the world's camera and a flying vehicle is exercised by
 every mission test (tests/uav_robots/test_end_to_end.py); here the camera is a small queryable on
