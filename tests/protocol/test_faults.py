@@ -5,7 +5,15 @@ from __future__ import annotations
 import pytest
 
 from protocol.errors import UavRobotsError
-from protocol.faults import VEHICLE, WORLD, Fault, help_line, parse_fault, split_faults, usage
+from protocol.faults import (
+    VEHICLE,
+    WORLD,
+    Fault,
+    help_line,
+    parse_fault,
+    split_faults,
+    usage,
+)
 
 
 @pytest.mark.parametrize("text, kind, injector", [

@@ -7,6 +7,7 @@ import signal
 import time
 
 import pytest
+from test_world_service import start_world, wait_alive
 
 from conformance import Hub, stop_process
 from protocol.codec import decode, encode
@@ -14,8 +15,6 @@ from protocol.errors import MissionError
 from protocol.messages import CameraFrame, CameraRequest, Record, RecordRequest
 from sim_world.camera_faults import OFF, STUCK, camera_faults
 from sim_world.faults import world_faults
-
-from test_world_service import start_world, wait_alive
 
 
 def test_the_windows_say_off_or_stuck_on_the_cameras_clock_and_once_each():
@@ -33,7 +32,7 @@ def test_a_frozen_camera_repeats_the_newest_image_and_the_component_fails_or_fre
     cf.remember(4, "image 4")
     cf.remember(2, "image 2")      # rendered out of order: the newest stays the one repeated
     assert cf.frozen() == "image 4"
-    shot = lambda t, seq: (None, None, None, 1.0, None, t, seq, seq)   # noqa: E731 - exposure()'s shape
+    shot = lambda t, seq: (None, None, None, 1.0, None, t, seq, seq)
     expose = cf.expose(lambda: shot(11.0, 7))
     with pytest.raises(MissionError, match="off"):
         expose()
@@ -53,7 +52,7 @@ def test_a_world_whose_camera_dies_then_freezes():
                            "--fault", "camera-off:0+6", "--fault", "camera-stuck:14+600")
         try:
             assert wait_alive(hub, hub.keys.alive_world), proc.stderr.read() if proc.poll() is not None else ""
-            ask = lambda **kw: hub.transport.request(hub.keys.camera, encode(CameraRequest(**kw)), 10)  # noqa: E731
+            ask = lambda **kw: hub.transport.request(hub.keys.camera, encode(CameraRequest(**kw)), 10)
             assert ask() == []                      # dead: no reply, and at once (not after the timeout)
             deadline = time.monotonic() + 30
             while not (cal := ask(calibration_only=True)) and time.monotonic() < deadline:
