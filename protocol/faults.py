@@ -3,7 +3,8 @@ MAVSDK's failure plugin names its failures (unit: what fails; kind: how).
 
 A row holds the spec's grammar, its help line and the process that injects it; the process's
 executor gives it its effect (a robot's agent: `robot_agents/agent.py`; the world's move judge:
-`sim_world`). Adding a fault kind is one row here plus its executor there.
+`sim_world/faults.py`; the world's camera: `sim_world/camera_faults.py`; our vehicle: `sim_world/vehicle/`).
+Adding a fault kind is one row here plus its executor there.
 
     robot.crash  crash:ROBOT@TICK        the robot dies when tick TICK arrives
     robot.stall  stall:ROBOT@TICK:TICKS  from tick TICK it neither moves nor reports, TICKS ticks long
@@ -11,9 +12,17 @@ executor gives it its effect (a robot's agent: `robot_agents/agent.py`; the worl
     world.slip   slip:P                  any move ends elsewhere with probability P
     world.skid   skid:ROBOT@TICK         from tick TICK every move of the robot ends elsewhere
     vehicle.battery  battery:PCT@SECONDS  after SECONDS simulated seconds in the air the pack holds PCT per cent
+    camera.off    camera-off:SECONDS+DURATION    from SECONDS simulated seconds after the world starts, for
+                                                 DURATION simulated seconds, the camera answers no request
+    camera.stuck  camera-stuck:SECONDS+DURATION  in that window it answers with the last image it rendered
+                                                 before it (the same pixels, pose, time and seq)
+    link.mavlink  mavlink-loss:SECONDS+DURATION  from SECONDS simulated seconds after liftoff, for DURATION
+                                                 simulated seconds, our vehicle's flight link carries nothing
 
 Ticks count the UAV's clock (the `k` of `Tick`), so a stall ends when the rest of the fleet
-has moved on that far, however long the UAV held it.
+has moved on that far, however long the UAV held it. Seconds are simulated: the clock the world
+stamps its images with (the camera's windows) or our vehicle's (the battery, the link), which run
+`--time-scale` times as fast as the wall clock.
 """
 from __future__ import annotations
 
@@ -55,6 +64,18 @@ CATALOGUE: tuple[FaultKind, ...] = (
     FaultKind("vehicle", "battery", "battery:PCT@SECONDS", rf"battery:(?P<pct>{_INT})@(?P<seconds>{_INT})", VEHICLE,
               "after SECONDS simulated seconds in the air our vehicle's pack holds only PCT per cent: its own "
               "failsafe acts"),
+    FaultKind("camera", "off", "camera-off:SECONDS+DURATION",
+              rf"camera-off:(?P<seconds>{_INT})\+(?P<duration>{_INT})", WORLD,
+              "from SECONDS simulated seconds after the world starts, DURATION long, the camera answers no "
+              "image request (a dead camera)"),
+    FaultKind("camera", "stuck", "camera-stuck:SECONDS+DURATION",
+              rf"camera-stuck:(?P<seconds>{_INT})\+(?P<duration>{_INT})", WORLD,
+              "in that window the camera answers with the last image it rendered before it, pose, time and "
+              "seq included (a frozen video pipeline)"),
+    FaultKind("link", "mavlink", "mavlink-loss:SECONDS+DURATION",
+              rf"mavlink-loss:(?P<seconds>{_INT})\+(?P<duration>{_INT})", VEHICLE,
+              "from SECONDS simulated seconds after liftoff, DURATION long, our vehicle's flight link drops "
+              "every message both ways: its datalink-loss failsafe (COM_DL_LOSS_T, NAV_DLL_ACT) acts"),
 )
 KINDS = {k.kind: k for k in CATALOGUE}
 
@@ -67,7 +88,8 @@ class Fault:
     ticks: int = 0
     p: float = 0.0
     pct: int = 0          # battery: the charge left, in per cent
-    seconds: int = 0      # battery: simulated seconds in the air before the pack drops
+    seconds: int = 0      # battery: simulated seconds in the air before the pack drops; a window's start
+    duration: int = 0     # a window's length (camera-off, camera-stuck, mavlink-loss), simulated seconds
 
     @property
     def row(self) -> FaultKind:
@@ -80,6 +102,7 @@ class Fault:
     def __str__(self) -> str:
         return (self.row.form.replace("ROBOT", str(self.robot)).replace("TICKS", str(self.ticks))
                 .replace("TICK", str(self.tick)).replace("PCT", str(self.pct)).replace("SECONDS", str(self.seconds))
+                .replace("DURATION", str(self.duration))
                 .replace("P", f"{self.p:g}"))
 
     def silent_at(self, k: int) -> bool:
@@ -89,6 +112,10 @@ class Fault:
         if self.kind == "stall":
             return self.tick <= k < self.tick + self.ticks
         return False
+
+    def active_at(self, t: float) -> bool:
+        """True while a window fault (camera-off, camera-stuck, mavlink-loss) acts at `t` seconds on its clock."""
+        return self.seconds <= t < self.seconds + self.duration
 
 
 def usage(injector: str | None = None) -> str:
@@ -129,6 +156,8 @@ def parse_fault(text: str, injector: str | None = None) -> Fault:
             raise UavRobotsError(f"--fault {text!r}: a stall lasts at least one tick")
         if "pct" in nums and nums["pct"] > 100:
             raise UavRobotsError(f"--fault {text!r}: the pack holds at most 100 %")
+        if "duration" in nums and nums["duration"] < 1:
+            raise UavRobotsError(f"--fault {text!r}: DURATION is at least 1 simulated second")
         return Fault(row.kind, **nums)
     raise UavRobotsError(f"--fault {text!r}: give {usage(injector)}")
 

@@ -17,6 +17,7 @@ from protocol.messages import CameraRequest
 from protocol.transport import IncomingQuery
 from scenarios.landmarks import LandmarkSet
 
+from .camera_faults import OFF, STUCK, CameraFaults
 from .config import WorldConfig
 from .desk import MoveDesk
 from .moves import MoveJudge
@@ -41,6 +42,7 @@ class WorldCamera:
     follower: Any
     camera_model: Any
     mavlink_camera: Any
+    camera_faults: CameraFaults | None = None   # camera-off / camera-stuck (camera_faults.py); set before start()
     warn: Callable[[str], None]
     _camera_pool: ThreadPoolExecutor
     _t0: float
@@ -50,6 +52,20 @@ class WorldCamera:
     def _on_camera(self, q: IncomingQuery) -> None:
         request = self._decode(q, CameraRequest)
         if request is None:
+            return
+        faulty = self.camera_faults.state(self.camera_clock()) if self.camera_faults is not None else None
+        if faulty == OFF:   # a dead camera: the query ends unanswered, as one that no longer speaks leaves it
+            self.camera_faults.count(OFF)
+            q.finish()
+            return
+        if faulty == STUCK and not request.calibration_only:   # a frozen pipeline: its last image again
+            old = self.camera_faults.frozen()
+            if old is None:   # frozen before it ever rendered: nothing to show
+                self.camera_faults.count(OFF)
+                q.finish()
+                return
+            self.camera_faults.count(STUCK)
+            q.reply(encode(old))
             return
         if request.calibration_only:   # no render: answered at once, ahead of images being made
             from .camera import calibration_frame
@@ -75,7 +91,10 @@ class WorldCamera:
         try:
             if shutter is not None:
                 shot = self.at_shutter(shot, shutter)
-            q.reply(encode(capture_frame(*shot)))
+            frame = capture_frame(*shot)
+            if self.camera_faults is not None:   # what a camera frozen later repeats
+                self.camera_faults.remember(shot[6], frame)
+            q.reply(encode(frame))
         except UavRobotsError as exc:
             self.warn(f"camera: {exc}")
             q.finish()
@@ -94,10 +113,12 @@ class WorldCamera:
 
         video = (VideoStream(video_config(c.camera_video), self.camera_model, render_view(self.exposure), c.mavlink_bind)
                  if c.camera_video else None)
+        expose, develop = self.exposure, lambda shot: capture_frame(*shot)
+        if self.camera_faults is not None:   # the component's images fail or freeze as the query's do
+            expose, develop = self.camera_faults.expose(expose), self.camera_faults.develop(develop)
         self.mavlink_camera = MavlinkCamera(CameraLink(c.camera_mavlink, (c.home_lat, c.home_lon, c.home_alt_m),
                                                        bind_host=c.mavlink_bind),
-                                            self.camera_model, self.exposure, lambda shot: capture_frame(*shot),
-                                            self._camera_pool.submit, video)
+                                            self.camera_model, expose, develop, self._camera_pool.submit, video)
         self.mavlink_camera.start()
         print(f"world: {self.mavlink_camera.describe()}", flush=True)
 
@@ -136,6 +157,14 @@ class WorldCamera:
 
         return capture_frame(*self.exposure())
 
+    def camera_clock(self) -> float:
+        """Now on the clock the images are stamped with (their `time_s`): the vehicle's simulated seconds,
+        or the world's since it started (at the followed autopilot's time scale)."""
+        if self.vehicle is not None:
+            return self.vehicle.sim_time_s
+        scale = self.cfg.time_scale if self.follower is not None else 1.0   # simulated seconds, as the vehicle's
+        return (time.monotonic() - self._t0) * scale
+
     def exposure(self) -> tuple:
         """What one image shows, fixed at the shutter: the scene, the camera's true view and the
         clock; capture_frame's arguments."""
@@ -153,7 +182,6 @@ class WorldCamera:
         view = self.camera_view()
         if view is None:   # no pose from the followed autopilot yet: the lens on the floor at its corner
             view = VehicleView(0.0, 0.0, -self.cfg.camera_height_m)
-        scale = self.cfg.time_scale if self.follower is not None else 1.0   # simulated seconds, as the vehicle's
-        t = self.vehicle.sim_time_s if self.vehicle is not None else (time.monotonic() - self._t0) * scale
+        t = self.camera_clock()
         seed = self._next_seq()
         return scene, view, self.camera_model, self.cfg.cell_size_m, self.estimator, t, self._next_seq(), seed

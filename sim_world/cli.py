@@ -133,6 +133,7 @@ def config_from_args(args: argparse.Namespace) -> WorldConfig:
 def world_command(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
     world = World(cfg)
+    world.camera_faults = world_faults(args.fault).camera   # camera-off / camera-stuck: sim_world/camera_faults.py
     world.stop_on_signals()
     try:
         try:

@@ -131,6 +131,8 @@ class World(WorldCamera, Lifecycle):
     def close(self) -> None:
         self.release()
         self.warn.flush()   # the warnings held back, said now rather than at exit
+        if self.camera_faults is not None:
+            print(f"world: {self.camera_faults.summary()}", flush=True)
         if self.desk is not None:
             self.desk.close()
         if self.mavlink_camera is not None:
@@ -299,7 +301,9 @@ class World(WorldCamera, Lifecycle):
                 "connectivity": self.cfg.connectivity, "cell_size_m": self.cfg.cell_size_m,
                 "slips": list(self.judge.skids), "safety_stops": self.judge.safety_stops,
                 "vehicle": self.vehicle_dict(),
-                "camera_component": self.mavlink_camera.record() if self.mavlink_camera is not None else None}
+                "camera_component": self.mavlink_camera.record() if self.mavlink_camera is not None else None,
+                **({"camera_faults": {"unanswered": self.camera_faults.unanswered,
+                                      "repeated": self.camera_faults.repeated}} if self.camera_faults else {})}
 
     def vehicle_dict(self) -> dict[str, Any] | None:
         """What the simulated autopilot itself saw: independent of what the UAV agent reports."""

@@ -156,7 +156,10 @@ def _estimate_options(args: argparse.Namespace) -> dict:
              "streams_until_asked": "streams_until_asked", "ready_after": "ready_after_s"}
     options = {field: getattr(args, arg) for arg, field in names.items() if getattr(args, arg, None) is not None}
     for f in (parse_fault(spec, VEHICLE) for spec in getattr(args, "fault", [])):
-        options["battery_drop"] = (f.pct / 100.0, float(f.seconds))
+        if f.kind == "battery":
+            options["battery_drop"] = (f.pct / 100.0, float(f.seconds))
+        elif f.kind == "mavlink":
+            options["link_loss"] = (float(f.seconds), float(f.duration))
     return options
 
 

@@ -48,6 +48,14 @@ ARM_RETRY_S = 1.0        # a refused arm is asked again this often while the aut
 # command is what the mission reports, not the refusal it caused.
 REFUSAL_GRACE_S = 1.5
 MAV_CMD_DO_SET_MODE, CUSTOM_MODE_ENABLED, COPTER_GUIDED = 176, 1, 4
+# A link that falls silent (a radio out of range: MAVSDK calls it disconnected after 3 s) is waited for this
+# long, and a command it swallowed sent again meanwhile: longer than the autopilot's own datalink-loss
+# timeout and its action's delay (PX4: COM_DL_LOSS_T 10 s, then COM_FAIL_ACT_T 5 s), so a link that comes
+# back within it shows what the autopilot decided (its failsafe's mode, which the guard then names).
+LINK_LOSS_S = 30.0
+LINK_RETRY_S = 0.2
+MAVSDK_SILENT_S = 3.0   # MAVSDK calls a system disconnected after this long without its heartbeat
+LINK_LOST = (ActionResult.TIMEOUT, ActionResult.NO_SYSTEM, ActionResult.CONNECTION_ERROR)
 
 _log = logging.getLogger("uav_agent.flight")
 
@@ -73,6 +81,9 @@ class Flight(Readings):
         # disarm), or None: checked before every command and in every wait, so the agent never
         # commands over the autopilot's own decision and notices it within a poll in any phase.
         self.guard: Callable[[], str | None] = lambda: None
+        self._silent_since: float | None = None   # when the link was first seen lost, None while it is up
+        # (seconds, time.monotonic() when it came back) of the link's last loss: the guard's reason says it
+        self.last_gap: tuple[float, float] | None = None
 
     # --- lifecycle ---------------------------------------------------------------------
 
@@ -366,13 +377,42 @@ class Flight(Readings):
     # --- helpers -----------------------------------------------------------------------
 
     def _act(self, what: str, call: Callable[[], object]) -> None:
-        self._check_guard()
-        try:
-            call()
-        except ActionError as exc:
-            if exc.result in (ActionResult.TIMEOUT, ActionResult.NO_SYSTEM, ActionResult.CONNECTION_ERROR):
-                raise MissionError(f"vehicle did not answer the request to {what} ({exc.result.name})") from None
-            self._refused(what, exc.result.name)
+        """Send a command; one the link swallowed is sent again for up to LINK_LOSS_S (a link lost for
+        longer before it, at once: the mission has given up on it)."""
+        first = None
+        while True:
+            self._check_guard()
+            try:
+                call()
+                return
+            except ActionError as exc:
+                if exc.result not in LINK_LOST:
+                    self._refused(what, exc.result.name)
+                now = time.monotonic()
+                first = now if first is None else first
+                if now - first >= LINK_LOSS_S or self._silent_s() >= LINK_LOSS_S:
+                    raise MissionError(f"vehicle did not answer the request to {what} ({exc.result.name})") from None
+            time.sleep(LINK_RETRY_S)
+
+    def link_lost_for(self, recent_s: float) -> float:
+        """Seconds the link is lost now, or was lost last if it came back within `recent_s`; else 0.
+        Kept up to date by whoever asks (the watch, every wait)."""
+        now = self._silent_s()
+        if now > 0:
+            return now + MAVSDK_SILENT_S
+        gap = self.last_gap
+        return gap[0] if gap is not None and time.monotonic() - gap[1] < recent_s else 0.0
+
+    def _silent_s(self) -> float:
+        now = time.monotonic()
+        if self._system is None or self._system.is_connected():
+            since, self._silent_since = self._silent_since, None
+            if since is not None:
+                self.last_gap = (now - since + MAVSDK_SILENT_S, now)
+            return 0.0
+        if self._silent_since is None:
+            self._silent_since = now
+        return now - self._silent_since
 
     def _refused(self, what: str, result: str) -> None:
         """A refusal is often the autopilot's own decision taken a moment before (a failsafe's RTL denies the
@@ -397,8 +437,9 @@ class Flight(Readings):
             self._check_guard()
             if done():
                 return
-            if self._system is not None and not self._system.is_connected():
-                raise MissionError(f"lost the autopilot link at {self.url}")
+            if self._silent_s() >= LINK_LOSS_S:   # a shorter silence is waited out (the deadline still holds)
+                raise MissionError(f"lost the autopilot link at {self.url}: nothing from it for {LINK_LOSS_S:g} s "
+                                   "(its own datalink-loss failsafe has the vehicle)")
             if time.monotonic() >= deadline:
                 raise MissionError(failure())
             time.sleep(POLL_S)

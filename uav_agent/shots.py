@@ -22,7 +22,10 @@ where it was asked for is not used: it is listed in `missed`, for the caller to
 take again, holding still. So is one whose published attitude leans further than
 `max_tilt_rad`: the shutter waits for the vehicle to level, and an image shot
 leaning anyway (an attitude read before the vehicle braked once let one through
-at 20 degrees) does not show the floor the survey counted on it for.
+at 20 degrees) does not show the floor the survey counted on it for. So is an
+image that never came (a dead camera leaves its query unanswered) and one that
+`stale` refuses (a frozen camera's old image again, camera_source/fresh.py): an
+image asked for without a pose (monitoring) is then simply not judged.
 """
 from __future__ import annotations
 
@@ -48,11 +51,12 @@ class Shots:
                  perceive: Callable[[CameraFrame], object] | None = None, timeout_s: float = 10.0,
                  fence: Callable[[], object] | None = None, ahead: int = 4,
                  merge: Callable[[object], None] | None = None, workers: int = 1,
-                 max_tilt_rad: float | None = None) -> None:
+                 max_tilt_rad: float | None = None, stale: Callable[[CameraFrame], str | None] | None = None) -> None:
         """`perceive` each frame as it arrives; with `merge`, `perceive` only measures (on up to
         `workers` frames at once) and `merge` folds each result in, in the frames' order."""
         self._start, self._on_frame, self._perceive, self._fence = start, on_frame, perceive, fence
         self._max_tilt_rad = max_tilt_rad
+        self._stale = stale
         self._merge = merge
         self._timeout_s, self._ahead = timeout_s, max(1, ahead)
         self._requests: queue.Queue[tuple[PendingRequest, Where | None] | None] = queue.Queue()
@@ -66,6 +70,7 @@ class Shots:
         self.frames: list[CameraFrame] = []
         self.missed: list[Where] = []
         self.why_missed: list[str] = []   # for each of `missed`
+        self.unused = 0                   # images not used, `missed` or asked for without a pose
         self._threads = [threading.Thread(target=self._receive, name="shots-receive", daemon=True),
                          threading.Thread(target=self._digest, name="shots-perceive", daemon=True)]
         if self._pool is not None:
@@ -88,8 +93,8 @@ class Shots:
             return self._handled >= self._asked
 
     def drain(self, first: int | None = None) -> list[CameraFrame]:
-        """Every image so far (or the `first` so many), perceived; MissionError if one never came
-        or did not decode."""
+        """Every image so far (or the `first` so many), perceived (one that never came is in `missed`);
+        MissionError if one did not decode, or none came nor failed in time."""
         with self._cv:
             want = self._asked if first is None else min(first, self._asked)
             # Each image has its own query timeout, and perceiving one takes a second at most.
@@ -108,6 +113,21 @@ class Shots:
         if self._pool is not None:
             self._pool.shutdown(wait=False, cancel_futures=True)
 
+    def _none(self, where: Where | None, why: str) -> None:
+        """An image that never came: to be taken again, not the end of the mission."""
+        self._skip(where, why)
+        with self._cv:
+            self._arrived += 1
+            self._handled += 1
+            self._cv.notify_all()
+
+    def _skip(self, where: Where | None, why: str) -> None:
+        with self._cv:   # two threads skip images: each pose keeps its own reason
+            self.unused += 1
+            if where is not None:
+                self.missed.append(where)
+                self.why_missed.append(why)
+
     def _fail(self, error: str) -> None:
         with self._cv:
             if self._error is None:
@@ -122,10 +142,10 @@ class Shots:
             try:
                 replies = pending.wait()
             except MissionError as exc:   # a MAVLink or video camera source names its own failure
-                self._fail(str(exc))
+                self._none(where, str(exc))
                 continue
-            if not replies:
-                self._fail(f"no answer from the world's camera within {self._timeout_s:g} s")
+            if not replies:   # a dead camera's query ends unanswered (or the world's took too long)
+                self._none(where, "no image from the camera")
                 continue
             try:
                 frame = decode(replies[0], CameraFrame)
@@ -166,11 +186,14 @@ class Shots:
 
     def _take(self, frame: CameraFrame, where: Where | None) -> bool:
         """True if the frame went on to be measured and merged."""
+        frozen = self._stale(frame) if self._stale is not None else None
+        if frozen is not None:   # not even recorded: it shows nothing new
+            self._skip(where, frozen)
+            return False
         self._on_frame(frame)
         why = None if where is None else miss(frame, where, max_tilt_rad=self._max_tilt_rad)
         if why is not None:
-            self.missed.append(where)
-            self.why_missed.append(why)
+            self._skip(where, why)
             return False
         self.frames.append(frame)
         if self._perceive is None:

@@ -18,6 +18,9 @@ FOREIGN_MODES = {"LAND", "RETURN_TO_LAUNCH", "MANUAL", "STABILIZED", "ACRO", "AL
 FOREIGN_BY_AUTOPILOT = {"ARDUPILOT": FOREIGN_MODES - {"OFFBOARD"}}
 # A mode that means the autopilot itself took the vehicle down or home: the agent leaves it to it.
 FAILSAFE_MODES = {"LAND", "RETURN_TO_LAUNCH"}
+# A fault seen this soon after the link came back from a loss is said to follow it (the autopilot's
+# datalink-loss failsafe acts while the link is down, and its STATUSTEXT then never comes).
+GAP_SAID_S = 10.0
 
 
 class VehicleWatch:
@@ -47,10 +50,10 @@ class VehicleWatch:
         """(what took the vehicle: a mode, "disarmed", "on the ground"; the fault's line), or (None, None)."""
         f = self.flight
         if not f.armed:
-            return "disarmed", "the vehicle was disarmed by someone else"
+            return "disarmed", "the vehicle was disarmed by someone else" + _gap(f)
         if not f.in_air:
             if not self._lifting:
-                return "on the ground", "the vehicle is on the ground though the mission did not land it"
+                return "on the ground", "the vehicle is on the ground though the mission did not land it" + _gap(f)
         else:
             self._lifting = False
         mode = f.flight_mode
@@ -70,6 +73,9 @@ class VehicleWatch:
             if not self._airborne.is_set() or self.fault is not None:
                 return self.fault
             try:
+                lost = getattr(self.flight, "link_lost_for", None)
+                if lost is not None:   # kept up to date, so a fault after a lost link says so
+                    lost(GAP_SAID_S)
                 taken, why = self._taken()
             except Exception as exc:  # noqa: BLE001 - a lost link is a fault like any other
                 taken, why = None, f"the vehicle's telemetry failed: {exc}"
@@ -101,4 +107,16 @@ def _why(flight: Any) -> str:
     text = getattr(flight, "status_text", "")
     if text:
         parts.append(f"the autopilot says {text!r}")
+    if _gap(flight):
+        parts.append(_gap(flight)[2:-1])
     return f" ({'; '.join(parts)})" if parts else ""
+
+
+def _gap(flight: Any) -> str:
+    """What a lost link explains: the autopilot's datalink-loss failsafe acted, and what it said meanwhile
+    never came."""
+    lost = getattr(flight, "link_lost_for", None)
+    gap = lost(GAP_SAID_S) if callable(lost) else 0.0
+    if not (isinstance(gap, (int, float)) and gap > 0):
+        return ""
+    return f" (after its MAVLink link was lost for {gap:.0f} s: its datalink-loss failsafe)"

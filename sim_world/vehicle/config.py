@@ -75,6 +75,8 @@ class VehicleConfig:
     attitude_noise_deg: float = 0.0   # white noise (1 sigma) on the reported roll, pitch and yaw
     # The fault `battery:PCT@SECONDS` (protocol/faults.py): (fraction left, simulated seconds in the air).
     battery_drop: tuple[float, float] | None = None
+    # The fault `mavlink-loss:SECONDS+DURATION`: (simulated seconds after liftoff, simulated seconds down).
+    link_loss: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         check_home(self.home_lat, self.home_lon)
@@ -93,6 +95,8 @@ class VehicleConfig:
         if self.battery_drop is not None and not (0 <= self.battery_drop[0] <= 1 and self.battery_drop[1] >= 0):
             raise MissionError(f"vehicle battery_drop must be (a fraction in [0, 1], seconds >= 0), got "
                                f"{self.battery_drop}")
+        if self.link_loss is not None and not (self.link_loss[0] >= 0 and self.link_loss[1] > 0):
+            raise MissionError(f"vehicle link_loss must be (seconds >= 0, a duration > 0), got {self.link_loss}")
         if not (math.isfinite(self.heading_deg) and -360 <= self.heading_deg <= 360):
             raise MissionError(f"vehicle heading_deg must be in [-360, 360], got {self.heading_deg}")
         if not (math.isfinite(self.hover_wobble_deg) and 0 <= self.hover_wobble_deg <= 30):

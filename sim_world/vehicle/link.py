@@ -28,6 +28,7 @@ from protocol.errors import MissionError
 
 from .config import VehicleConfig
 from .journal import CRITICAL, Journal
+from .link_loss import LinkLoss
 
 COMPONENT_ID = mavlink.MAV_COMP_ID_AUTOPILOT1
 SIGNING_EPOCH = 1420070400  # MAVLink 2 signing timestamps count 10 us units from 2015-01-01
@@ -79,6 +80,7 @@ class Link:
         self._companion: tuple[int, object] | None = None  # (system id, address) the flight link answers
         self._strangers: set[tuple[int, object]] = set()
         self._refused_strangers = 0
+        self.loss: LinkLoss | None = None   # the fault mavlink-loss: the flight link's window of silence
 
     def open(self) -> None:
         try:
@@ -169,9 +171,15 @@ class Link:
     def send(self, msg, channel: Channel | None = None) -> None:
         """Frame and send `msg` on `channel`, or on every channel."""
         for ch in (channel,) if channel is not None else self.channels:
+            if self._lost(ch):
+                continue
             with ch.lock:
                 if ch.conn is not None:
                     ch.packer.send(msg)
+
+    def _lost(self, ch: Channel) -> bool:
+        """Whether what goes over `ch` now is lost (the flight link, in an injected loss's window)."""
+        return ch.name == "vehicle" and self.loss is not None and self.loss.down()
 
     def reply(self, msg) -> None:
         """Send `msg` on the channel whose message is being handled (all of them outside a handler)."""
@@ -219,7 +227,7 @@ class Link:
             return True  # ICMP port unreachable from a udpout peer that is not up yet
         except OSError:
             return False
-        if not data:
+        if not data or self._lost(ch):   # read, then lost: the sender's socket sees nothing wrong
             return True
         if isinstance(data, str):
             data = data.encode("latin-1")

@@ -16,6 +16,7 @@ from .dynamics import Dynamics, State
 from .estimator import Estimator
 from .journal import Journal
 from .link import Link
+from .link_loss import LinkLoss
 from .mission import Mission
 from .mission_protocol import MissionService
 from .modes import LandedState, Mode
@@ -50,6 +51,9 @@ class Vehicle:
         self._payload = Payload(self._lock, self._journal, announce=self._announce_trigger)
         self._battery = Battery(self._lock, self._journal, self._params, cfg.battery_drop)
         self._datalink = Datalink(self._lock)
+        if cfg.link_loss is not None:   # the fault mavlink-loss: the flight link falls silent for a while
+            self._link.loss = LinkLoss(*cfg.link_loss, clock=lambda: (self._dynamics.sim_time, self._dynamics.airborne),
+                                       journal=self._journal)
         enc = self._link.encoder
         self._mission = Mission(self._lock, self._params, (cfg.home_lat, cfg.home_lon, cfg.home_alt_m),
                                 on_reached=lambda seq: self._link.send(enc.mission_item_reached_encode(seq)),

@@ -76,17 +76,19 @@ def test_the_spec_fills_what_the_command_line_did_not_give(tmp_path):
 
 def test_every_fault_kind_is_one_row_named_unit_dot_kind():
     names = [k.name for k in CATALOGUE]
-    assert names == ["robot.crash", "robot.stall", "robot.liar", "world.slip", "world.skid", "vehicle.battery"]
+    assert names == ["robot.crash", "robot.stall", "robot.liar", "world.slip", "world.skid", "vehicle.battery",
+                     "camera.off", "camera.stuck", "link.mavlink"]
     assert all(k.form in help_line() and k.help in help_line() for k in CATALOGUE)
     assert usage(ROBOTS) == "crash:ROBOT@TICK, stall:ROBOT@TICK:TICKS or liar:ROBOT"
 
 
 @given(kind=st.sampled_from(CATALOGUE), robot=st.integers(0, 999), tick=st.integers(1, 10**6),
        ticks=st.integers(1, 1000), p=st.sampled_from([0.0, 0.05, 0.5, 1.0]), pct=st.integers(0, 100),
-       seconds=st.integers(0, 3600))
-def test_every_fault_spec_round_trips(kind, robot, tick, ticks, p, pct, seconds):
+       seconds=st.integers(0, 3600), duration=st.integers(1, 3600))
+def test_every_fault_spec_round_trips(kind, robot, tick, ticks, p, pct, seconds, duration):
     text = (kind.form.replace("ROBOT", str(robot)).replace("TICKS", str(ticks)).replace("TICK", str(tick))
-            .replace("PCT", str(pct)).replace("SECONDS", str(seconds)).replace("P", f"{p:g}"))
+            .replace("PCT", str(pct)).replace("SECONDS", str(seconds)).replace("DURATION", str(duration))
+            .replace("P", f"{p:g}"))
     fault = parse_fault(text)
     assert str(fault) == text and fault.injector == kind.injector and fault.kind == kind.kind
 

@@ -130,7 +130,12 @@ def test_refused_command_is_a_mission_error(link):
 
 
 @pytest.mark.slow
-def test_lost_link_ends_a_wait_early(link):
+def test_lost_link_ends_a_wait_early(link, monkeypatch):
+    """A link silent for LINK_LOSS_S (30 s; 2 here) ends the wait before its own deadline; a shorter
+    silence is waited out (tests/uav_agent/test_link_loss.py)."""
+    import uav_agent.flight as flight_module
+
+    monkeypatch.setattr(flight_module, "LINK_LOSS_S", 2.0)
     vehicle, flight = link
     flight.connect(timeout_s=10)
     flight.takeoff(5.0, timeout_s=15)

@@ -13,6 +13,7 @@ from protocol.codec import encode
 from protocol.transport import Transport, open_session, zenoh_config
 
 from ..camera_source.base import CameraSource
+from ..camera_source.fresh import OUTAGE_S, RETRY_S, Freshness, usable
 from ..events import EventLog
 from ..fleet import FleetLink
 from ..preview import Previewer
@@ -82,6 +83,7 @@ class MissionContext:
         self.watch: VehicleWatch | None = None
         self.pose_feed: PoseFeed | None = None
         self.camera: CameraSource | None = None   # camera_source: the world's query, MAVLink's camera or a video stream
+        self.freshness = Freshness()              # the images' stamps: a frozen camera's old image is refused
         self.token = transport.announce(self.keys.alive_uav)
         self.previewer = Previewer(lambda f: self.transport.put(self.keys.uav_frame, encode(f)))
         self.fleet = FleetLink(transport, self.keys, cfg.robots)
@@ -133,7 +135,12 @@ class MissionContext:
         return north, east, down, yaw, roll, pitch
 
     def capture(self, calibration_only: bool = False) -> CameraFrame:
-        frame = self.camera.frame(calibration_only)
+        """One usable image (or the calibration): a camera that gives none, or only a frozen one, is asked
+        again for a while (camera_source/fresh.py), said once as a `camera-outage` event."""
+        frame = usable(lambda: self.camera.frame(calibration_only), self.freshness,
+                       lambda why: self.event("camera-outage", [], why,
+                                              f"asking again every {RETRY_S:g} s for up to {OUTAGE_S:g} s"),
+                       self.interrupted)
         if frame.png:
             self.took(frame)
         return frame
@@ -157,7 +164,7 @@ class MissionContext:
         return Shots(lambda: self.camera.start(roi), self.took, whole or measure or fusion.measure, CAMERA_TIMEOUT_S,
                      fence=self.camera.fence,
                      merge=None if whole else fusion.merge, workers=PERCEPTION_WORKERS,
-                     max_tilt_rad=math.radians(RETAKE_TILT_DEG))
+                     max_tilt_rad=math.radians(RETAKE_TILT_DEG), stale=self.freshness.stale)
 
     def done_for(self, robot: int, plan) -> bool:
         d = self.fleet.done.get(robot)
