@@ -6,7 +6,7 @@ from typing import Any
 
 from protocol.config import add_session_arguments
 from protocol.errors import MissionError, UavRobotsError
-from protocol.faults import WORLD, usage
+from protocol.faults import CATALOGUE, WORLD
 from protocol.keys import DEFAULT_FLEET
 from protocol.run_spec import add_spec_argument, apply_spec
 from scenarios.scene import scene_options
@@ -72,10 +72,9 @@ def add_world_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera-video", default=None, metavar="udp://HOST:PORT[?fps=F&width=W]",
                    help="stream the camera's video as H.264 over RTP to HOST:PORT (QGroundControl: 5600; "
                         "default 5 fps, 1280 px wide); off by default (it costs the world CPU)")
-    p.add_argument("--fault", action="append", default=[], metavar=usage(WORLD).replace(" or ", "|"),
-                   help="slip:P: each move ends, with probability P, in another free neighbour cell or where "
-                        "it started, and the robot is told it arrived (only a camera sees the truth); "
-                        "skid:ROBOT@TICK: from tick TICK every move of that robot does so (a broken drive)")
+    p.add_argument("--fault", action="append", default=[], metavar="SPEC",
+                   help="inject a fault into the world (repeatable): " + "; ".join(
+                       f"{k.form}: {k.help}" for k in CATALOGUE if k.injector == WORLD))
     p.add_argument("--move-timeout", type=float, default=MOVE_BATCH_TIMEOUT_S, metavar="S",
                    help="how long a tick's moves are collected before the missing robots are made to stay")
     add_spec_argument(p)

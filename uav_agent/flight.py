@@ -54,6 +54,9 @@ MAV_CMD_DO_SET_MODE, CUSTOM_MODE_ENABLED, COPTER_GUIDED = 176, 1, 4
 # back within it shows what the autopilot decided (its failsafe's mode, which the guard then names).
 LINK_LOSS_S = 30.0
 LINK_RETRY_S = 0.2
+# After a silent link, its telemetry is trusted again this long after it came back: every stream the waits
+# read (position, in-air state, mode) has then been sent afresh.
+FRESH_S = 1.5
 MAVSDK_SILENT_S = 3.0   # MAVSDK calls a system disconnected after this long without its heartbeat
 LINK_LOST = (ActionResult.TIMEOUT, ActionResult.NO_SYSTEM, ActionResult.CONNECTION_ERROR)
 
@@ -403,6 +406,12 @@ class Flight(Readings):
         gap = self.last_gap
         return gap[0] if gap is not None and time.monotonic() - gap[1] < recent_s else 0.0
 
+    def _stale(self) -> bool:
+        """True while the link is silent, and for FRESH_S after it came back: what MAVSDK holds then is
+        from before the loss (an altitude the vehicle has left while its failsafe took it home)."""
+        gap = self.last_gap
+        return self._silent_s() > 0 or (gap is not None and time.monotonic() - gap[1] < FRESH_S)
+
     def _silent_s(self) -> float:
         now = time.monotonic()
         if self._system is None or self._system.is_connected():
@@ -435,7 +444,7 @@ class Flight(Readings):
         the guard says the vehicle is not the mission's any more."""
         while True:
             self._check_guard()
-            if done():
+            if not self._stale() and done():
                 return
             if self._silent_s() >= LINK_LOSS_S:   # a shorter silence is waited out (the deadline still holds)
                 raise MissionError(f"lost the autopilot link at {self.url}: nothing from it for {LINK_LOSS_S:g} s "

@@ -24,6 +24,11 @@ class Datalink:
             with self._lock:
                 self._last = time.monotonic()
 
+    def heard(self) -> bool:
+        """Whether a controller's heartbeat ever came."""
+        with self._lock:
+            return self._last != -math.inf
+
     def silent_for(self, now: float) -> float:
         """Seconds since the controller's last heartbeat; 0 if there never was one."""
         with self._lock:

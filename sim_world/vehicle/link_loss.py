@@ -3,7 +3,7 @@ seconds after liftoff, for DURATION simulated seconds, the flight link (the comp
 agent's) carries nothing either way, as a radio out of range or a cut cable does. The ground
 station's and the pose reader's links stay up: they are other radios.
 
-Counted from liftoff, not boot: how long a vehicle waits on the ground (a companion starting, a
+Counted from liftoff (with the link heard once: a link never up is not lost), not boot: how long a vehicle waits on the ground (a companion starting, a
 fleet coming alive) varies from run to run, its flight much less, so a window lands in the same
 part of the mission every time. Nothing else changes: the autopilot's own datalink-loss failsafe
 (safety.py, PX4's COM_DL_LOSS_T then NAV_DLL_ACT) sees the companion's heartbeats stop and acts.
@@ -23,7 +23,7 @@ BEFORE, DOWN, OVER = "before", "down", "over"
 class LinkLoss:
     start_s: float                               # simulated seconds after liftoff
     duration_s: float                            # simulated seconds
-    clock: Callable[[], tuple[float, bool]]      # (simulated seconds, airborne), the airframe's
+    clock: Callable[[], tuple[float, bool]]      # (simulated seconds, airborne with the link heard)
     journal: Journal
     dropped: int = 0                             # messages lost, both ways
     _liftoff: float | None = None

@@ -52,8 +52,10 @@ class Vehicle:
         self._battery = Battery(self._lock, self._journal, self._params, cfg.battery_drop)
         self._datalink = Datalink(self._lock)
         if cfg.link_loss is not None:   # the fault mavlink-loss: the flight link falls silent for a while
-            self._link.loss = LinkLoss(*cfg.link_loss, clock=lambda: (self._dynamics.sim_time, self._dynamics.airborne),
-                                       journal=self._journal)
+            # Counted from liftoff with the link heard: a link no heartbeat came on has nothing to lose (the
+            # companion may arm before its first one, and PX4's datalink-loss failsafe would never act).
+            self._link.loss = LinkLoss(*cfg.link_loss, journal=self._journal, clock=lambda: (
+                self._dynamics.sim_time, self._dynamics.airborne and self._datalink.heard()))
         enc = self._link.encoder
         self._mission = Mission(self._lock, self._params, (cfg.home_lat, cfg.home_lon, cfg.home_alt_m),
                                 on_reached=lambda seq: self._link.send(enc.mission_item_reached_encode(seq)),
