@@ -212,13 +212,26 @@ def test_an_aborted_run_still_writes_its_report(tmp_path):
 @pytest.mark.slow
 def test_crash_and_stall_on_the_papers_setting(tmp_path):
     run = Run(tmp_path / "out", "--map", "warehouse-450", "--robots", "50",
-              "--fault", "crash:7@30", "--fault", "stall:12@50:20")
+              "--fault", "crash:7@30", "--fault", "stall:12@50:20", "--tick-timeout", "3")
     code, report = run.finish(timeout=400)
     assert code in (0, 3), "".join(run.lines)[-3000:]
     kinds = _kinds(report)
     assert kinds["robot-lost"] == [7] and 12 in kinds["robot-stalled"]
     assert all(ok for rid, ok in report["verified"].items() if rid not in ("7", "12"))
     _check_truth(report, {7, 12})
+    out = tmp_path / "out"
+    assert (out / "report.json").stat().st_size <= 200_000, "report.json must stay readable"
+    # Robots arrive from tick 11 on: most arrivals are confirmed while the others still move.
+    assert report["verified_during_execution"], "no arrival was confirmed during execution"
+    assert set(report["verified_during_execution"]) <= {int(r) for r, ok in report["verified"].items() if ok}
+    # The 450 floor's video replaces its GIF (a robot would be a pixel in it): one frame per tick.
+    assert not (out / "replay.gif").exists() and (out / "report.html").exists()
+    import cv2
+
+    video = cv2.VideoCapture(str(out / "replay.mp4"))
+    assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == report["ticks"] + 1
+    assert not list(out.glob(".replay-draft*"))
+    assert (out / "mission.mcap").stat().st_size > 0
 
 
 def _vehicle_ports(run: Run) -> list[int]:
