@@ -24,6 +24,7 @@ MAX_IMAGE_BYTES = 64 * 2**20     # a CameraFrame's PNG, after the NUL
 MAX_DEPTH = 32                   # nested arrays and objects, the message's own object included
 MAX_COUNT = 2**53 - 1            # seq and counters: the largest integer every JSON reader holds exactly
 MAX_ROBOT_ID = 9_999_999         # seven decimal digits, also as Record.executed's keys
+MAX_MOVERS = 1_000               # people, forklifts and pallets on one floor (FloorMovers)
 MAX_ROBOTS = 65_536              # entries of a MoveBatch, a MoveBatchResult, Record.executed
 MAX_TICKS = 100_000              # tick numbers and makespans
 MAX_PATH_CELLS = MAX_TICKS + 1   # a planned or executed path: one cell per tick from 0

@@ -154,6 +154,12 @@ class Keys:
     def record(self) -> str:
         return f"{self.prefix}/world/record"
 
+    @property
+    def world_movers(self) -> str:
+        """The world's people, forklifts and pallets after each tick (FloorMovers): ground truth for
+        observers (views, recorders). The UAV must not listen: it sees movers only through its camera."""
+        return f"{self.prefix}/world/movers"
+
 
 def robot_id_from_key(key: str) -> int | None:
     """`.../robot/<id>/...` or `.../alive/robot/<id>` -> id, None if the key has no valid id.

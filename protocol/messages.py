@@ -20,7 +20,7 @@ import typing
 from dataclasses import dataclass, field
 from typing import Annotated, Any, ClassVar, Literal, NamedTuple
 
-from .bounds import (MAX_GRID_SIDE, MAX_IMAGE_BYTES, MAX_IMAGE_SIDE, MAX_LANDMARKS, MAX_MESSAGE_BYTES, MAX_RECORD_BYTES,
+from .bounds import (MAX_GRID_SIDE, MAX_MOVERS, MAX_IMAGE_BYTES, MAX_IMAGE_SIDE, MAX_LANDMARKS, MAX_MESSAGE_BYTES, MAX_RECORD_BYTES,
                      MAX_REFUSED, MAX_ROBOT_ID, MAX_ROBOTS, MAX_TICKS, Cell, Count, Finite, MaxLen, NonNegative, Object,
                      Path, Positive, Range, RobotId, RobotKey, Robots, Text, TickNo, unwrap)
 
@@ -261,6 +261,17 @@ class Record(Message):
     truth: Object
 
 
+MoverKind = Literal["person", "forklift", "pallet"]
+
+
+@dataclass(frozen=True)
+class FloorMovers(Message):
+    """World -> observers, after each tick: the uncooperative movers on the floor (id, kind, cell).
+    Ground truth for views and recorders; no one must listen, and the UAV must not."""
+    tick: TickNo
+    movers: Annotated[list[tuple[Annotated[int, Range(0, MAX_MOVERS - 1)], MoverKind, Cell]], MaxLen(MAX_MOVERS)]
+
+
 @dataclass(frozen=True)
 class MissionStatus(Message):
     phase: Text
@@ -312,7 +323,7 @@ class VehiclePose(Message):
 MESSAGE_TYPES: dict[str, type[Message]] = {
     cls.__name__: cls
     for cls in (Plan, PlanAck, Tick, MoveRequest, MoveResult, MoveBatch, MoveBatchResult, MoveAhead, MovesJudged, RobotState, StateBatch, Done, CameraRequest,
-                CameraFrame, WorldInfoRequest, WorldInfo, RecordRequest, Record, MissionStatus, MissionEnd,
+                CameraFrame, WorldInfoRequest, WorldInfo, RecordRequest, Record, FloorMovers, MissionStatus, MissionEnd,
                 MissionEvent, VehiclePose)
 }
 

@@ -32,10 +32,21 @@ class SceneSpec:
     """What the world lays on the floor for the camera (scenarios/scene.py)."""
     landmark_spacing: int = 12               # cells between surveyed landmarks (0: none)
     goal_pads: bool = True                   # goals as green pads a robot on them leaves visible
+    people: int = 0                          # uncooperative movers (sim_world/movers.py) the world walks
+    forklifts: int = 0
+    pallets: int = 0
+    routes: str | None = None                # a file of scripted movers (`sim_world.movers.read_routes`)
 
     def text(self) -> str:
         """As `--scene` takes it (every key given: no preset needed)."""
-        return f"landmark_spacing={self.landmark_spacing},goal_pads={int(self.goal_pads)}"
+        movers = "".join(f",{k}={v}" for k, v in (("people", self.people), ("forklifts", self.forklifts),
+                                                  ("pallets", self.pallets)) if v)
+        return (f"landmark_spacing={self.landmark_spacing},goal_pads={int(self.goal_pads)}{movers}"
+                + (f",routes={self.routes}" if self.routes else ""))
+
+    @property
+    def movers(self) -> bool:
+        return bool(self.people or self.forklifts or self.pallets or self.routes)
 
 
 @dataclass(frozen=True)
@@ -65,6 +76,7 @@ class LimitsSpec:
     tick_timeout_s: float = 10.0
     tick_rate_hz: float = 0.0
     monitor_every: int | None = None
+    look_every: int | None = None            # the UAV's looks for movers (None: once its survey saw one)
     timeout_s: float = 900.0
 
 

@@ -72,7 +72,7 @@ def _grants(k: Keys, who: Identity) -> list[tuple[list[str], str, list[str]]]:
             # the answers are put back, one key per sender.
             (["declare_subscriber"], "ingress", [k.mission_end, k.tick, k.all_ahead]),
             (["put"], "egress", [k.mission_end, k.tick, k.all_ahead]),
-            (["put"], "ingress", [f"{k.prefix}/world/judged/*"]),
+            (["put"], "ingress", [f"{k.prefix}/world/judged/*", k.world_movers]),   # the movers: for observers
             (["declare_subscriber"], "egress", [f"{k.prefix}/world/judged/*"]),
             (["liveliness_token"], "ingress", [k.alive_world]),
             (["declare_liveliness_subscriber", "liveliness_query"], "ingress", [*alive_uav, k.alive_robots]),

@@ -177,8 +177,10 @@ class WorldCamera:
         assert self.desk is not None
         with self.desk.cv:
             robots = dict(self.judge.positions)
+            traffic = self.judge.traffic
+            movers = tuple((m.kind, m.cell) for m in traffic.on_floor()) if traffic is not None else ()
         scene = Scene(self.truth.free, robots, list(self.truth.goals), self.landmarks,
-                      goal_pads=self.cfg.scene.goal_pads)
+                      goal_pads=self.cfg.scene.goal_pads, movers=movers)
         view = self.camera_view()
         if view is None:   # no pose from the followed autopilot yet: the lens on the floor at its corner
             view = VehicleView(0.0, 0.0, -self.cfg.camera_height_m)

@@ -9,7 +9,7 @@ from protocol.errors import MissionError, UavRobotsError
 from protocol.faults import CATALOGUE, WORLD
 from protocol.keys import DEFAULT_FLEET
 from protocol.run_spec import add_spec_argument, apply_spec
-from scenarios.scene import scene_options
+from scenarios.scene import add_mover_arguments, scene_of_args
 
 from .camera.model import DEFAULT_CAMERA_PRESET, camera_model_from, camera_options, camera_preset
 from .config import DRONE_CAMERA, HOME, MOVE_BATCH_TIMEOUT_S, WorldConfig
@@ -63,6 +63,7 @@ def add_world_arguments(p: argparse.ArgumentParser) -> None:
                    help="what the world lays on the floor for the camera: a preset (ideal, realistic) then keys "
                         "over it, landmark_spacing=N (cells; 0 none) and goal_pads=0|1 (default: the camera "
                         "preset's namesake)")
+    add_mover_arguments(p)
     p.add_argument("--wobble", type=float, default=None, metavar="DEG",
                    help="its vehicle's roll and pitch wobble in a hover, degrees (default: 0.3 with the realistic "
                         "camera, 0 with the ideal one)")
@@ -114,7 +115,7 @@ def config_from_args(args: argparse.Namespace) -> WorldConfig:
     cfg = WorldConfig(fleet=args.fleet, map=args.map, robots=args.robots, seed=args.seed, scen=args.scen,
                       connectivity=args.connectivity, cell_size_m=args.cell_size, home_lat=home[0],
                       home_lon=home[1], home_alt_m=home[2], mavlink=mav, time_scale=args.time_scale,
-                      camera={**DRONE_CAMERA, **camera_options(args.camera)}, scene=scene_options(args.scene, preset),
+                      camera={**DRONE_CAMERA, **camera_options(args.camera)}, scene=scene_of_args(args, preset),
                       wobble_deg=wobble, connect=args.connect, listen=args.listen,
                       zenoh_config=args.zenoh_config, move_batch_timeout_s=args.move_timeout,
                       slip=faults.slip, skids=faults.skids, gcs=args.gcs, mavlink_key=args.mavlink_key,

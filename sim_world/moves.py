@@ -17,6 +17,8 @@ from protocol.errors import UavRobotsError
 from protocol.grid import Cell, on_grid
 from protocol.messages import MoveResult
 
+from .traffic import Traffic
+
 
 @dataclass(frozen=True)
 class Refusal:
@@ -66,6 +68,8 @@ class MoveJudge:
     skid_robots: dict[int, int] = field(default_factory=dict)   # `--fault skid:R@T`: from tick T, every move of R
     seed: int = 0
     skids: list[dict[str, Any]] = field(default_factory=list)
+    traffic: Traffic | None = None   # the floor's people, forklifts and pallets (traffic.py), stepped with each tick
+    mover_collisions: int = 0        # robot-mover contacts, also counted in `collisions`
 
     def __post_init__(self) -> None:
         if self.connectivity not in (4, 8):
@@ -161,8 +165,13 @@ class MoveJudge:
                 self.refused.append(Refusal(tick, r, tuple(frm), tuple(to), why[r], collision))
                 out[r] = MoveResult(r, tick, False, pos[r], why[r])
         actual = self._skid(tick, target) if self.skid_prob or self.skid_robots else target
+        before = dict(pos)
         for r, to in actual.items():
             pos[r] = to
+        if self.traffic is not None:
+            touched = len(self.traffic.step(tick, before, pos))
+            self.mover_collisions += touched
+            self.collisions += touched
         for r, (frm, to) in requests.items():
             if r in pos and r not in why:
                 # After a skid the robot believes it arrived: only an outside look can tell.
@@ -222,6 +231,8 @@ class MoveJudge:
         pos = self.positions
         # Cells someone stands on now or after the tick are out: no vertex conflict, no swap.
         taken = {target.get(r, c) for r, c in pos.items()} | set(pos.values())
+        if self.traffic is not None:   # nor onto a mover: its bumper stops it first
+            taken |= {m.cell for m in self.traffic.on_floor()}
         actual = dict(target)
         for r, to in target.items():
             broken = tick >= self.skid_robots.get(r, tick + 1)

@@ -35,6 +35,7 @@ from .camera_service import WorldCamera
 from .config import WorldConfig, fence_reach_m, vehicle_config
 from .desk import Ask, MoveDesk, send_all
 from .moves import MoveJudge
+from .traffic import build_traffic
 from .truth import build_truth
 
 
@@ -48,7 +49,9 @@ class World(WorldCamera, Lifecycle):
         self.landmarks: LandmarkSet | None = None
         self.estimator: Any = None
         self.judge = MoveJudge(self.truth.free, dict(self.truth.starts), cfg.connectivity,
-                               skid_prob=cfg.slip, skid_robots=dict(cfg.skids), seed=cfg.seed)
+                               skid_prob=cfg.slip, skid_robots=dict(cfg.skids), seed=cfg.seed,
+                               traffic=build_traffic(cfg.scene, self.truth.free, list(self.truth.starts.values()),
+                                                     self.truth.goals, cfg.seed))
         self.desk: MoveDesk | None = None
         self.ahead: AheadDesk | None = None
         self.transport = transport
@@ -65,6 +68,7 @@ class World(WorldCamera, Lifecycle):
         self._t0 = time.monotonic()
         self._seq = 0
         self._seq_lock = threading.Lock()
+        self._movers_thread: threading.Thread | None = None
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -114,6 +118,28 @@ class World(WorldCamera, Lifecycle):
         )
         self._start_camera_component()
         self.keep(t.announce(k.alive_world))
+        if self.judge.traffic is not None:
+            self._movers_thread = threading.Thread(target=self._publish_movers, name="movers", daemon=True)
+            self._movers_thread.start()
+
+    def _publish_movers(self, poll_s: float = 0.02) -> None:
+        """The movers after each tick, for observers (a poll: the judge is pure, and a view or a
+        recorder loses nothing by a tick merged into the next; the record keeps every tick)."""
+        from protocol.messages import FloorMovers
+
+        last = -1
+        while not self.stop.wait(poll_s):
+            assert self.desk is not None and self.judge.traffic is not None
+            with self.desk.cv:
+                tick = self.judge.tick
+                movers = [(m.id, m.kind, m.cell) for m in self.judge.traffic.on_floor()] if tick != last else None
+            if movers is None or self.transport is None:
+                continue
+            try:
+                self.transport.put(self.keys.world_movers, encode(FloorMovers(tick, movers, seq=self._next_seq())))
+            except Exception as exc:  # noqa: BLE001 - a closing session: the view misses a tick, nothing more
+                self.warn(f"movers not published: {exc}")
+            last = tick
 
     def run(self, poll_s: float = 0.1) -> str:
         """Serve until stopped; returns why it stopped."""
@@ -135,6 +161,8 @@ class World(WorldCamera, Lifecycle):
             print(f"world: {self.camera_faults.summary()}", flush=True)
         if self.desk is not None:
             self.desk.close()
+        if self._movers_thread is not None:
+            self._movers_thread.join(timeout=1.0)
         if self.mavlink_camera is not None:
             self.mavlink_camera.close()
         self._camera_pool.shutdown(wait=True, cancel_futures=True)
@@ -300,6 +328,8 @@ class World(WorldCamera, Lifecycle):
                 "goals": [list(g) for g in t.goals],
                 "connectivity": self.cfg.connectivity, "cell_size_m": self.cfg.cell_size_m,
                 "slips": list(self.judge.skids), "safety_stops": self.judge.safety_stops,
+                **({"movers": {**self.judge.traffic.as_dict(), "collisions": self.judge.mover_collisions}}
+                   if self.judge.traffic is not None else {}),
                 "vehicle": self.vehicle_dict(),
                 "camera_component": self.mavlink_camera.record() if self.mavlink_camera is not None else None,
                 **({"camera_faults": {"unanswered": self.camera_faults.unanswered,

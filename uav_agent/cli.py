@@ -57,6 +57,10 @@ def add_uav_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--monitor-every", type=int, default=None, metavar="K",
                    help="while the robots move, one image every K ticks, checked against the plan "
                         "(default: automatic, at most 20 %% of the execution time; 0: never)")
+    p.add_argument("--look-every", type=int, default=None, metavar="L",
+                   help="people, forklifts and pallets on the floor: a look for them every L ticks, every robot's "
+                        "step checked against where they may be (default: every 2 once the survey saw one; "
+                        "0: never, the movers ignored)")
     p.add_argument("--tick-rate", type=float, default=0.0, metavar="HZ",
                    help="at most this many ticks per second, as robots that need time to cross a cell "
                         "(default 0: as fast as the fleet reports)")
@@ -72,6 +76,7 @@ SPEC_FIELDS = {
     "--connectivity": lambda s: s.planning.connectivity, "--time-limit": lambda s: s.planning.time_limit_s,
     "--no-fallback": lambda s: not s.planning.fallback, "--tick-timeout": lambda s: s.limits.tick_timeout_s,
     "--tick-rate": lambda s: s.limits.tick_rate_hz, "--monitor-every": lambda s: s.limits.monitor_every,
+    "--look-every": lambda s: s.limits.look_every,
 }
 
 
@@ -110,6 +115,8 @@ def uav_command(a: argparse.Namespace) -> int:
     from .planning.assignment import DEFAULT_ASSIGNMENT
 
     spec = apply_spec(a, SPEC_FIELDS)
+    if a.look_every is not None and a.look_every < 0:
+        raise UavRobotsError(f"--look-every {a.look_every}: a number of ticks, 0 or more")
     if a.robots is not None:
         check_fleet(a.robots)
     cfg = MissionConfig(fleet=a.fleet, robots=a.robots, listen=a.listen, connect=a.connect,
@@ -118,7 +125,7 @@ def uav_command(a: argparse.Namespace) -> int:
                         time_limit_s=a.time_limit, fallback=not a.no_fallback, seed=a.seed,
                         out=Path(a.out) if a.out else None, tick_timeout_s=a.tick_timeout,
                         tick_rate_hz=a.tick_rate,
-                        monitor_every=a.monitor_every, observers=max(0, a.observers),
+                        monitor_every=a.monitor_every, look_every=a.look_every, observers=max(0, a.observers),
                         camera=camera_source_config(a), run=spec.as_dict() if spec is not None else None)
     report = run_mission(cfg, Progress(enabled=not a.quiet))
     if a.summary == "text":

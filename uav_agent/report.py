@@ -123,6 +123,9 @@ def summary(report: dict[str, Any], out: Path | None) -> str:
         + (f" (safety stops {report['safety_stops']}: robots stopped by one that failed or slipped unseen)"
            if report.get("safety_stops") else ""),
     ]
+    if report.get("movers"):
+        lines.append(f"  movers: {report['movers']} on the floor, {report.get('mover_collisions', 0)} robot-mover "
+                     f"collisions, {report.get('near_misses', 0)} near misses (a robot within one cell of one)")
     if report.get("plan"):
         m = report["plan"]["metrics"]
         lines.append(f"  plan: {report['plan'].get('planner', '?')}, sum of costs {m['sum_of_costs']} "

@@ -23,6 +23,7 @@ from protocol.errors import MapError, MissionError
 from protocol.grid import Cell, on_grid
 from scenarios.landmarks import LandmarkSet
 
+from ..movers import FORKLIFT, PALLET, PERSON
 from .degrade import degrade
 from .fields import upsample
 from .model import CameraModel
@@ -36,6 +37,19 @@ OUTSIDE_BGR = (110, 45, 35)
 GOAL_BGR = (60, 220, 60)
 GOAL_RING_BGR = (25, 70, 25)
 MARKER_QUIET_BGR = (255, 255, 255)
+# The uncooperative movers (sim_world.movers) carry no marker: they are told apart by colour,
+# each a saturated hue nothing else on the floor has (shelves are brown but dark, the outside
+# blue but dark, goals green), and as bright as a goal pad or brighter (grey level >= 150, over
+# twice a shelf's 64), so the occupancy split still reads their cell as floor. Hues (OpenCV,
+# 0..180), the contract uav_agent.perception.movers reads them by: a person ~9 (a hi-vis
+# orange vest seen from above), a forklift ~24 (safety yellow), a pallet ~154 (magenta plastic:
+# blue, the usual plastic pallet, would share the outside's hue and differ from it only in a
+# brightness the lighting gradient erodes). Lighting and vignetting scale all three channels
+# alike and leave the hue as it is.
+PERSON_BGR = (60, 120, 255)
+FORKLIFT_BGR = (0, 200, 255)
+FORK_TINE_BGR = (90, 90, 90)      # the forks: mid grey, a marker's contrast they must not reach
+PALLET_BGR = (230, 100, 250)
 
 ARUCO_DICTIONARY = cv2.aruco.DICT_4X4_1000
 MARKER_IDS = 1000          # ids 0..999 exist in DICT_4X4_1000
@@ -54,6 +68,15 @@ GOAL_RING = 0.07           # of a cell, the dark ring around it
 GOAL_PAD = 0.96
 ROBOT_BODY = 0.8
 BODY_MODULES = 7           # across the body: 6 marker modules + 2 half-module margins
+# Movers, in cells, centred in their cell: a person a disc (shoulders and vest); a forklift a
+# body nearly filling its cell with its two forks ahead of it (north: the scene has no heading);
+# a pallet a square.
+PERSON_DIAMETER = 0.58
+FORKLIFT_BODY = (0.86, 0.62)      # across, along
+FORK_TINE = (0.09, 0.28)          # each fork's width and length, beyond the body's front
+FORK_GAP = 0.3                    # between the forks' centres
+PALLET_SIDE = 0.8
+MOVER_KINDS = (PERSON, FORKLIFT, PALLET)
 MAX_TEXTURE_PX = 8192
 MAP_STEP_PX = 8            # the distortion map is computed every 8 pixels and interpolated (error ~0.001 px)
 
@@ -77,13 +100,15 @@ def as_pose(pose: CameraPose | tuple) -> CameraPose:
 
 @dataclass(frozen=True, eq=False)
 class Scene:
-    """What is physically on the floor: the grid, robots by marker id, goal markers, and the
-    surveyed landmarks (on shelf tops and just outside the border; None = a bare floor)."""
+    """What is physically on the floor: the grid, robots by marker id, goal markers, the surveyed
+    landmarks (on shelf tops and just outside the border; None = a bare floor), and the people,
+    forklifts and pallets standing on it."""
     free: np.ndarray                       # bool [height, width], True = floor
     robots: dict[int, Cell] = field(default_factory=dict)
     goals: list[Cell] = field(default_factory=list)
     landmarks: LandmarkSet | None = None
     goal_pads: bool = False                # the pad layout (see GOAL_PAD); False = goal discs, full-cell tags
+    movers: tuple[tuple[str, Cell], ...] = ()   # (kind, cell): people, forklifts, pallets, drawn over all else
 
     def __post_init__(self) -> None:
         free = np.asarray(self.free)
@@ -98,6 +123,11 @@ class Scene:
         for x, y in self.goals:
             if not on_grid(x, y, w, h):
                 raise MapError(f"scene: goal {(x, y)} is off the {w}x{h} grid")
+        for kind, (x, y) in self.movers:
+            if kind not in MOVER_KINDS:
+                raise MapError(f"scene: mover kind {kind!r} is none of {', '.join(MOVER_KINDS)}")
+            if not on_grid(x, y, w, h):
+                raise MapError(f"scene: {kind} at {(x, y)} is off the {w}x{h} grid")
 
 
 def camera_rotation(yaw: float, roll: float = 0.0, pitch: float = 0.0) -> np.ndarray:
@@ -202,17 +232,49 @@ def _texture(scene: Scene, x0: int, y0: int, x1: int, y1: int, ppc: int, cell_si
         _draw_pads(tex, scene, x0, y0, x1, y1, ppc)
     else:
         _draw_discs_and_tags(tex, scene, x0, y0, x1, y1, ppc)
+    if scene.movers:
+        _draw_movers(tex, scene.movers, x0, y0, x1, y1, ppc)
     if scene.landmarks is not None:
         _draw_landmarks(tex, scene.landmarks, cell_size_m, x0, y0, ppc)
     return tex
 
 
+def _rect(tex: np.ndarray, cx: float, cy: float, width: float, height: float, colour: tuple[int, int, int]) -> None:
+    """A filled axis-aligned rectangle centred at texel coordinates (cx, cy), edges anti-aliased."""
+    shift = 4
+    w, h = width / 2, height / 2
+    pts = np.array([[cx - w, cy - h], [cx + w, cy - h], [cx + w, cy + h], [cx - w, cy + h]]) - 0.5
+    cv2.fillConvexPoly(tex, np.round(pts * (1 << shift)).astype(np.int32), colour, cv2.LINE_AA, shift)
+
+
 def _square(tex: np.ndarray, cx: float, cy: float, side: float, colour: tuple[int, int, int]) -> None:
     """A filled axis-aligned square centred at texel coordinates (cx, cy), edges anti-aliased."""
+    _rect(tex, cx, cy, side, side, colour)
+
+
+def _draw_movers(tex: np.ndarray, movers: tuple[tuple[str, Cell], ...], x0: int, y0: int, x1: int, y1: int,
+                 ppc: int) -> None:
+    """Each mover inside the texture's window over whatever its cell shows (a person or a
+    forklift that meets a robot stands over it): a few anti-aliased draws each."""
     shift = 4
-    h = side / 2
-    pts = np.array([[cx - h, cy - h], [cx + h, cy - h], [cx + h, cy + h], [cx - h, cy + h]]) - 0.5
-    cv2.fillConvexPoly(tex, np.round(pts * (1 << shift)).astype(np.int32), colour, cv2.LINE_AA, shift)
+    for kind, (mx, my) in movers:
+        if not (x0 <= mx < x1 and y0 <= my < y1):
+            continue
+        cx, cy = (mx - x0 + 0.5) * ppc, (my - y0 + 0.5) * ppc
+        if kind == PERSON:
+            centre = (round((cx - 0.5) * (1 << shift)), round((cy - 0.5) * (1 << shift)))
+            cv2.circle(tex, centre, round(PERSON_DIAMETER / 2 * ppc * (1 << shift)), PERSON_BGR, -1, cv2.LINE_AA, shift)
+        elif kind == FORKLIFT:
+            across, along = FORKLIFT_BODY
+            tine_w, tine_l = FORK_TINE
+            # Body and forks together span along + tine_l, centred on the cell; the forks point north (-y).
+            top = cy - (along + tine_l) / 2 * ppc
+            _rect(tex, cx, top + (tine_l + along / 2) * ppc, across * ppc, along * ppc, FORKLIFT_BGR)
+            for side in (-1, 1):
+                _rect(tex, cx + side * FORK_GAP / 2 * ppc, top + tine_l / 2 * ppc, tine_w * ppc, tine_l * ppc,
+                      FORK_TINE_BGR)
+        else:
+            _square(tex, cx, cy, PALLET_SIDE * ppc, PALLET_BGR)
 
 
 @lru_cache(maxsize=4096)

@@ -16,9 +16,9 @@ from uav_agent.report import load_report
 from uav_robots.record import replay
 from uav_robots.record.recording import Recording, read_mcap
 from uav_robots.record.report_html import arrived_per_tick, compare
+from browser_page import DRAWN, PAGE_RGB, launch, movers_at, open_page, playwright_session
 
 CLI = [sys.executable, "-m", "uav_robots"]
-CHROMIUM = next((p for p in (shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome")) if p), None)
 FOXGLOVE = {"/uav/camera": "foxglove.CompressedImage", "/uav/pose": "foxglove.PoseInFrame", "/map": "foxglove.Grid"}
 PROTOCOL = {"/fleet/plan": "Plan", "/fleet/tick": "Tick", "/fleet/state": "RobotState", "/fleet/done": "Done",
             "/mission/status": "MissionStatus", "/mission/end": "MissionEnd"}
@@ -161,25 +161,6 @@ def test_replay_bad_input_is_one_line_exit_2(tmp_path):
     assert res.returncode == 2 and "--view" in res.stderr
 
 
-def _browser():
-    if CHROMIUM is None:
-        pytest.skip("no Chromium on this machine (`apt-get install chromium`; .ci/run installs it)")
-    playwright = pytest.importorskip("playwright.sync_api", reason="pip install playwright")
-    return playwright.sync_playwright()
-
-
-def _open(page, port: int, what: str, wait_s: float = 60.0):
-    """`page` showing the server on `port`, once it answers (the run starts it a little later)."""
-    deadline = time.monotonic() + wait_s
-    while True:
-        try:
-            page.goto(f"http://127.0.0.1:{port}/", timeout=5000)
-            return page
-        except Exception:
-            assert time.monotonic() < deadline, f"{what} never answered"
-            time.sleep(0.3)
-
-
 def _wait(page, expression, timeout_s):
     page.wait_for_function(expression, timeout=timeout_s * 1000)
 
@@ -189,15 +170,16 @@ def _wait(page, expression, timeout_s):
 def test_live_view_in_a_real_browser(tmp_path):
     port = _port()
     log = open(tmp_path / "run.txt", "w")
-    # 5 ticks a second, so two looks a second apart see robots move.
+    # 5 ticks a second, so two looks a second apart see robots move; people, a forklift and a pallet
+    # among them, for the view to draw.
     proc = subprocess.Popen(CLI + ["run", "--camera", "ideal", "--robots", "8", "--tick-rate", "5", "--out", str(tmp_path / "out"),
-                                   "--view", str(port), "--view-hold", "60"],
+                                   "--scene", "people=2,forklifts=1,pallets=1", "--view", str(port), "--view-hold", "60"],
                             stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
     try:
-        with _browser() as pw:
-            browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        with playwright_session() as pw:
+            browser = launch(pw)
             try:
-                page = _open(browser.new_page(viewport={"width": 1300, "height": 950}), port, "the view")
+                page = open_page(browser.new_page(viewport={"width": 1300, "height": 950}), port, "the view")
                 _wait(page, "window.viewState && window.viewState.tick >= 1", 120)
                 first = page.evaluate("JSON.stringify(window.viewState.robots)")
                 time.sleep(1.0)
@@ -207,16 +189,22 @@ def test_live_view_in_a_real_browser(tmp_path):
                 _wait(page, "document.getElementById('camera').naturalWidth > 0", 10)
                 # The UAV lands after the mission's end: its pose feed shows it coming down.
                 _wait(page, "window.viewState.pose.alt_m !== undefined && window.viewState.pose.alt_m < 1.0", 60)
-                shown = page.evaluate("window.viewState")
+                time.sleep(0.5)                      # a frame drawn with the last delta
+                shown, drawn = page.evaluate("window.viewState"), page.evaluate(DRAWN)
                 assert page.inner_text("#end").startswith("completed")
+                assert page.inner_text("#movers").startswith("movers on the floor: 4 (2 people, 1 forklift, 1 pallet")
+                assert page.is_visible("#moverKey")
+                assert len(drawn) >= 3 and all(rgb == PAGE_RGB[kind] for _, kind, rgb in drawn), drawn
+                # The report is complete once the launcher has written report.html (it then holds the view).
+                deadline = time.monotonic() + 60
+                while not (tmp_path / "out" / "report.html").exists():
+                    assert time.monotonic() < deadline and proc.poll() is None, (tmp_path / "run.txt").read_text()
+                    time.sleep(0.2)
+                report = load_report(tmp_path / "out")
+                assert shown["movers"] == movers_at(report, report["ticks"])   # the world's last tick, as recorded
+                _replayed_movers(browser, tmp_path / "out", report)
             finally:
                 browser.close()
-        # The report is complete once the launcher has written report.html (it then holds the view).
-        deadline = time.monotonic() + 60
-        while not (tmp_path / "out" / "report.html").exists():
-            assert time.monotonic() < deadline and proc.poll() is None, (tmp_path / "run.txt").read_text()
-            time.sleep(0.2)
-        report = load_report(tmp_path / "out")
         assert {rid: c[:2] for rid, c in shown["robots"].items()} == _final_cells(report)
         assert shown["tick"] == report["ticks"]
         assert shown["end"]["completed"] is report["completed"]
@@ -224,13 +212,37 @@ def test_live_view_in_a_real_browser(tmp_path):
         assert shown["poses"] >= 10 and len(shown["track"]) >= 3, (shown["poses"], shown["track"])
         assert "live view at http://127.0.0.1:" in (tmp_path / "run.txt").read_text()
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=5)
+        _stop(proc)
         log.close()
+
+
+def _stop(proc) -> None:
+    proc.terminate()
+    try:
+        proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(timeout=5)
+
+
+def _replayed_movers(browser, out, report) -> None:
+    """The recorded mission in the replay view: the movers per tick from the world's record, the
+    report's robot-mover counts."""
+    port = _port()
+    proc = subprocess.Popen(CLI + ["replay", str(out), "--view", str(port), "--view-hold", "60"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL)
+    try:
+        page = open_page(browser.new_page(), port, "the replay view")
+        _wait(page, "window.viewState.updates > 0", 30)
+        assert page.evaluate("window.viewState.movers") == movers_at(report, 0)
+        page.click("#play")
+        _wait(page, f"window.viewState.tick === {report['ticks']}", 30)
+        assert page.evaluate("window.viewState.movers") == movers_at(report, report["ticks"])
+        assert page.evaluate("window.viewState.moversOutcome") == {
+            "movers": 4, "collisions": report["mover_collisions"], "near_misses": report["near_misses"]}
+        assert f"near misses {report['near_misses']}" in page.inner_text("#movers")
+    finally:
+        _stop(proc)
 
 
 @pytest.mark.browser
@@ -241,10 +253,10 @@ def test_recorded_mission_in_the_view(recorded):
     proc = subprocess.Popen(CLI + ["replay", str(out), "--view", str(port), "--view-hold", "60"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
     try:
-        with _browser() as pw:
-            browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        with playwright_session() as pw:
+            browser = launch(pw)
             try:
-                page = _open(browser.new_page(), port, "the replay view")
+                page = open_page(browser.new_page(), port, "the replay view")
                 _wait(page, "window.viewState.updates > 0", 30)
                 start = page.evaluate("window.viewState.robots")
                 assert {r: c[:2] for r, c in start.items()} == {
@@ -255,12 +267,7 @@ def test_recorded_mission_in_the_view(recorded):
             finally:
                 browser.close()
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=5)
+        _stop(proc)
 
 
 def test_a_view_client_gets_what_changed_since_its_last_update():
@@ -309,3 +316,14 @@ def test_the_view_moves_the_drone_with_its_pose_feed():
     assert view.delta(seen)["pose"]["north_m"] == -4.0
     view.apply(k.uav_pose, b"not a pose")      # a view shows what it can read
     assert view.delta(seen)["poses"] == 3
+
+
+def test_the_view_survives_fleet_messages_of_the_wrong_shape():
+    from uav_robots.view.state import FleetView
+
+    view = FleetView()
+    for payload in (b'{"tick": 1}', b"[1, 2]", b'{"robot": 1, "cell": 5, "tick": 1}', b'"text"'):
+        view.apply("uavr/f/robot/1/state", payload)
+        view.apply("uavr/f/robots/0-3/states", payload)
+    view.apply("uavr/f/robot/1/state", b'{"robot": 1, "cell": [2, 3], "tick": 4, "status": "stepping"}')
+    assert view.robots == {1: (2, 3, "stepping")} and view.tick == 4

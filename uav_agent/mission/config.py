@@ -27,6 +27,7 @@ class MissionConfig:
     tick_timeout_s: float = 10.0
     tick_rate_hz: float = 0.0          # at most this many ticks per second (0: as fast as the fleet goes)
     monitor_every: int | None = None   # an image every this many ticks while robots move (0: never; None: auto)
+    look_every: int | None = None      # movers: a look every this many ticks (0: never; None: once the survey saw one)
     # A robot's marker module is 1/8 cell: 19 px per cell gives 2.4 px per module, which reads
     # through the realistic camera (at 17.5, 5 of the 450 warehouse's 50 robots went unread);
     # on the 450 floor with a 4000x3000 camera it is also where 3 x 3 images cover it, not 4 x 3.

@@ -71,6 +71,7 @@ class MissionContext:
         self.tick = 0                         # the last tick sent
         self.ended = False                    # MissionEnd is out
         self.plans = Plans()
+        self.movers = None                    # movers.MoverWatch, once people, forklifts or pallets are watched
         self.roster = Roster()
         self.arrivals = Arrivals()
         self.vantage = Vantage()

@@ -8,7 +8,7 @@ import time
 from protocol.messages import Tick
 from protocol.codec import encode
 
-from . import dispatch, monitor, repair
+from . import dispatch, monitor, movers, repair
 from .context import MissionContext
 from .state import PlanState
 
@@ -39,6 +39,13 @@ def run(ctx: MissionContext) -> None:
         if pace:
             next_at += pace
             time.sleep(max(0.0, next_at - time.monotonic()))
+        off = movers.look_if_due(ctx, ctx.tick)
+        lost = movers.goals_lost(ctx, ctx.tick)
+        if off or lost:
+            repaired(ctx, ctx.tick, {k: v for k, v in (("deviation", off), ("goal-lost", lost)) if v})
+        around = movers.before_tick(ctx, ctx.tick)
+        if around is not None:
+            repaired_around(ctx, around)
         plan = ctx.plans.now
         k = ctx.tick = ctx.tick + 1
         with fleet.cv:   # a state for tick k is a robot's only once Tick(k) is out
@@ -83,6 +90,14 @@ def repaired(ctx: MissionContext, k: int, faults: dict[str, list[int]]) -> None:
         plan = repair.recover(ctx, k, faults)
         failed = dispatch.send(ctx, plan)
         faults = {"error": failed} if failed else {}
+
+
+def repaired_around(ctx: MissionContext, plan: PlanState) -> None:
+    """A plan repaired around the movers, sent before its first tick; robots that do not take it are
+    faults of their own (a robot keeping its old plan could walk into a mover: it is held first)."""
+    failed = dispatch.send(ctx, plan)
+    if failed:
+        repaired(ctx, ctx.tick, {"error": failed})
 
 
 def hold_for_rejoin(ctx: MissionContext, until: float | None) -> float | None:

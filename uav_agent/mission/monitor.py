@@ -28,7 +28,8 @@ def plan_stops(ctx: MissionContext, plan: PlanState) -> None:
                    and {tuple(c) for c in plan.paths[r]} == {tuple(plan.goals[r])}}
     todo = {r: tuple(plan.goals[r]) for r in plan.ids if r not in a.confirmed}
     a.ticks = arrival_ticks(plan.paths, plan.start_tick)   # of the plan flown: robot -> its last move's tick
-    a.stops = stops(ctx.vantage.poses, todo, a.ticks, ctx.info.cell_size_m) if todo else []
+    # Watching movers, the vehicle holds where it looks from: arrivals are confirmed by the looks and the verification.
+    a.stops = stops(ctx.vantage.poses, todo, a.ticks, ctx.info.cell_size_m) if todo and ctx.movers is None else []
     a.stop = None
 
 
@@ -75,8 +76,23 @@ def last_looks(ctx: MissionContext) -> None:
         seen(ctx, wait=True)
 
 
+def taken_in(ctx: MissionContext, g: Glance) -> list[int]:
+    """A judged image's findings taken in, if it was taken under the plan flown now: its arrivals
+    confirmed, strikes forgiven for robots it shows on plan; the robots it shows off their plan."""
+    if g.plan_id != ctx.plans.now.plan_id:
+        return []
+    ctx.arrivals.confirmed.update((r, g.plan_id) for r in g.on_goal)
+    if ctx.roster.strikes:
+        ctx.roster.forgive(g.on_plan)
+    if g.off:
+        ctx.event("camera-deviation", g.off, f"seen off its planned cell after tick {g.tick}")
+    return list(g.off)
+
+
 def due(ctx: MissionContext, k: int) -> bool:
     a = ctx.arrivals
+    if ctx.movers is not None:   # the movers' looks, every tick or two, are the monitoring
+        return False
     every = ctx.cfg.monitor_every
     if every is not None:
         return every > 0 and k % every == 0
@@ -100,16 +116,13 @@ def shoot(ctx: MissionContext, k: int, stop=None) -> None:
     t = time.perf_counter()
     a, plan = ctx.arrivals, ctx.plans.now
     fusion = ctx.fusion(set(plan.ids))
-    arrived = {r for r, tick in a.ticks.items() if tick <= k}
+    arrived = arrived_by(ctx, k)
     glance = Glance(plan.plan_id, k)
 
     def judge(frame: CameraFrame) -> None:   # on the images' thread
         fusion.add(frame)
-        model = fusion.model()
-        glance.on_goal = [r for r, c in model.robots.items() if r in arrived and tuple(c) == tuple(plan.goals[r])]
         glance.took = time.perf_counter() - t
-        glance.on_plan = [r for r, c in model.robots.items() if r in plan.paths and tuple(c) == plan.cell(r, k)]
-        glance.off = sorted(r for r, c in model.robots.items() if r in plan.paths and tuple(c) != plan.cell(r, k))
+        judged(glance, fusion.model(), plan, arrived)
 
     roi = None
     if stop is not None:
@@ -119,6 +132,21 @@ def shoot(ctx: MissionContext, k: int, stop=None) -> None:
     glance.shots.shoot(None if stop is None else stop.pose)
     ctx.clock.add("monitor", time.perf_counter() - t)
     a.monitored += 1
+
+
+def arrived_by(ctx: MissionContext, k: int) -> set[int]:
+    """The robots whose last move of the plan flown is at or before tick k."""
+    return {r for r, tick in ctx.arrivals.ticks.items() if tick <= k}
+
+
+def judged(glance: Glance, model, plan: PlanState, arrived: set[int]) -> Glance:
+    """What an image taken after `glance.tick` shows of `plan`, the one it was taken under: robots on
+    their planned cell, off it, and (of the `arrived`) on their goals after their last move."""
+    k = glance.tick
+    glance.on_goal = [r for r, c in model.robots.items() if r in arrived and tuple(c) == tuple(plan.goals[r])]
+    glance.on_plan = [r for r, c in model.robots.items() if r in plan.paths and tuple(c) == plan.cell(r, k)]
+    glance.off = sorted(r for r, c in model.robots.items() if r in plan.paths and tuple(c) != plan.cell(r, k))
+    return glance
 
 
 def region(ctx: MissionContext, pose, cells: list[Cell]):
@@ -151,14 +179,7 @@ def seen(ctx: MissionContext, wait: bool = False) -> list[int]:
         if g.off is None:   # the image missed its pose: no judgement
             continue
         a.monitor_work += g.took
-        if g.plan_id != plan.plan_id:
-            continue
-        a.confirmed.update((r, g.plan_id) for r in g.on_goal)
-        if ctx.roster.strikes:
-            ctx.roster.forgive(g.on_plan)
-        if g.off:
-            ctx.event("camera-deviation", g.off, f"seen off its planned cell after tick {g.tick}")
-            off.update(g.off)
+        off.update(taken_in(ctx, g))
     pid = plan.plan_id
     a.stops = [s for s in a.stops if not all(a.confirmed.get(r) == pid for r in s.robots)]
     if a.stop not in a.stops:

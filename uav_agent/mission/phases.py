@@ -7,7 +7,7 @@ import secrets
 from typing import Any
 
 from ..progress import Progress
-from . import context, dispatch, execute, finish, plan, repair, score, start, survey, verify
+from . import context, dispatch, execute, finish, movers, plan, repair, score, start, survey, verify
 from .config import MissionConfig
 from .context import MissionContext
 from .state import PlanState
@@ -27,8 +27,8 @@ def run_mission(cfg: MissionConfig, progress: Progress | None = None) -> dict[st
         model = survey.perceive(ctx)
         result = plan.plan(ctx, model)
         ids = ctx.plans.ids
-        dispatch.send(ctx, PlanState(secrets.token_hex(4), 0, dict(zip(ids, map(list, result.paths))),
-                                     dict(zip(ids, result.goals))), first=True)
+        first = PlanState(secrets.token_hex(4), 0, dict(zip(ids, map(list, result.paths))), dict(zip(ids, result.goals)))
+        dispatch.send(ctx, movers.start(ctx, model, first), first=True)
         while True:
             execute.run(ctx)
             verify.run(ctx)

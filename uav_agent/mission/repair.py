@@ -30,13 +30,15 @@ def recover(ctx: MissionContext, k: int, faults: dict[str, list[int]]) -> PlanSt
     cfg, roster, plans, fleet = ctx.cfg, ctx.roster, ctx.plans, ctx.fleet
     t = time.perf_counter()
     roster.replans += 1
-    faulty = set(faults.get("lost", [])) | set(faults.get("error", [])) | set(faults.get("stalled", []))
+    faulty = set(faults.get("lost", [])) | set(faults.get("error", [])) | set(faults.get("stalled", [])) \
+        | set(faults.get("goal-lost", []))
     for kind, robots in faults.items():
         if not robots:
             continue
         what = {"lost": "liveliness gone", "error": "reported status error",
                 "stalled": f"no state for tick {k} within {cfg.tick_timeout_s:g} s",
-                "deviation": "reported a cell off its plan", "rejoin": "back and reporting"}[kind]
+                "deviation": "reported a cell off its plan", "rejoin": "back and reporting",
+                "goal-lost": "its goal lies under a pallet"}[kind]
         ctx.event(f"robot-{kind}", robots, what, f"fleet held at tick {k}; fresh look; replan")
     ctx.status("recover", message=f"tick {k}: {', '.join(f'{a} {b}' for a, b in faults.items())}")
     # Hold at the tick boundary: the robots still working finish tick k before the look, so the

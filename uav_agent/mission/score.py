@@ -9,7 +9,7 @@ from protocol.messages import Record, RecordRequest
 
 from .. import report as report_files
 from .. import world_query
-from . import verify
+from . import movers, verify
 from .context import MissionContext
 
 
@@ -48,6 +48,16 @@ def cross_check(ctx: MissionContext, rec: Record) -> None:
                                               f"the camera saw {tuple(seen[r])}")
 
 
+def movers_summary(rec: Record | None) -> dict:
+    """The world's movers in the report's top level (their trace stays in `truth`): robot-mover
+    collisions (counted in `collisions` too) and near misses; nothing on a floor without movers."""
+    movers = (rec.truth or {}).get("movers") if rec else None
+    if not movers:
+        return {}
+    return {"mover_collisions": movers.get("collisions", 0), "near_misses": movers.get("near_misses", 0),
+            "near_miss_ticks": movers.get("near_miss_ticks", 0), "movers": len(movers.get("movers", []))}
+
+
 def fill(ctx: MissionContext, rec: Record | None, outcome: str, reason: str) -> None:
     from protocol.mapfile import format_rows
 
@@ -68,12 +78,14 @@ def fill(ctx: MissionContext, rec: Record | None, outcome: str, reason: str) -> 
         "lost": sorted(roster.blocked),
         "out_of_plan": {str(r): roster.out_reason.get(r, "") for r in sorted(roster.blocked)},
         "quarantined": sorted(roster.quarantined),
-        "unserved_goals": [list(g) for g in plans.unserved],
+        "unserved_goals": [list(g) for g in movers.unserved(ctx)],
         "replans": roster.replans,
         "monitor_images": a.monitored,
         "events": ctx.events.as_dicts(),
         "collisions": rec.collisions if rec else None,
         "safety_stops": (rec.truth or {}).get("safety_stops", 0) if rec else None,
+        **movers_summary(rec),
+        **movers.report(ctx),
         "refused": rec.refused if rec else [],
         "ticks": ctx.tick,
         "plan": plan_to_dict(result, model.free, ids=ids) if result is not None else None,

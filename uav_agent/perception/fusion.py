@@ -7,6 +7,8 @@ clearly the cell read as floor or shelf. A cell whose weighted votes conflict,
 or that only weak views saw, is `unsure`: the mission looks closer before it
 treats such a cell as an obstacle. Robot markers are settled by the summed
 quality of their readings; landmark cells are known shelf and never a robot.
+People, forklifts and pallets (`movers`) stand on floor: their cells are free,
+never a marker; where they are is what each cell's latest look showed.
 """
 from __future__ import annotations
 
@@ -23,6 +25,7 @@ from protocol.messages import CameraFrame
 from .frames import Frame, Pixels, pixels, reduction
 from .goals import goal_blobs, goals_from
 from .markers import Sighting, read_faint, read_markers, settle
+from .movers import MoverSighting, mover_pixels, movers_from
 from .occupancy import MARKER_STD_RATIO, Cells, cells_in
 from .registration import Landmarks, Registration, register
 from .view import View, px_per_cell, sharpness
@@ -55,11 +58,14 @@ class WorldModel:
     warnings: list[str] = field(default_factory=list)
     unsure: list[Cell] = field(default_factory=list)         # conflicting or weakly seen: blocked until looked at
     frames: list[FrameReport] = field(default_factory=list)
+    # People, forklifts, pallets: in each cell, what the latest view that saw it trusted showed
+    # (one that has moved on since may stand where an older view saw it, too).
+    movers: list[MoverSighting] = field(default_factory=list)
 
 
-# The goal pads' colour split runs beside the registration (OpenCV releases the GIL): a frame
-# alone, as the survey's last one is, is read in two thirds of the time. Threads enough for the
-# survey's frames measured at once.
+# The goal pads' and the movers' colour splits run beside the registration (OpenCV releases the
+# GIL): a frame alone, as the survey's last one is, is read in two thirds of the time. Threads
+# enough for the survey's frames measured at once.
 _SIDE = ThreadPoolExecutor(4, thread_name_prefix="perception-goals")
 
 
@@ -111,6 +117,8 @@ class Reading:
     weight: np.ndarray | None = None   # each cell's vote weight
     markers: bool = False              # registered: its goals and markers count
     goals: set[Cell] = field(default_factory=set)
+    movers: list[MoverSighting] = field(default_factory=list)   # on trusted cells only, as goals
+    movers_read: bool = False          # registered: its trusted cells were looked at for movers
     sightings: list[Sighting] = field(default_factory=list)
     faint: list = field(default_factory=list)          # markers.read_markers' faint reads
     warnings: list[str] = field(default_factory=list)
@@ -136,21 +144,27 @@ class Fusion:
         self.sightings: list[Sighting] = []
         self.faint: list = []
         self.goals: set[Cell] = set()
+        self.mover_at: dict[Cell, str] = {}          # cell -> kind, as the latest view trusted there showed it
+        self.mover_cells: set[Cell] = set()         # every cell a mover was seen on: floor
+        self.last_movers: list[MoverSighting] = []  # the movers of the frame merged last (a monitoring image's)
+        self.last_checked = np.zeros((height, width), bool)   # ... and the cells it looked for them in
         self.warnings: list[str] = []
         self.reports: list[FrameReport] = []
         self.best = 0.0                             # the heaviest view's weight
 
-    def add(self, item: Pixels | Frame | CameraFrame) -> View:
-        reading = self.measure(item)
+    def add(self, item: Pixels | Frame | CameraFrame, movers_only: bool = False) -> View:
+        reading = self.measure(item, movers_only)
         self.merge(reading)
         return reading.view
 
-    def measure(self, item: Pixels | Frame | CameraFrame) -> Reading:
+    def measure(self, item: Pixels | Frame | CameraFrame, movers_only: bool = False) -> Reading:
         """Everything one frame says, read without touching the fusion: frames may be measured
-        on several threads at once (OpenCV releases the GIL) and merged in their order."""
+        on several threads at once (OpenCV releases the GIL) and merged in their order.
+        `movers_only`: the floor and its movers, no goals or markers (a look for movers from high up)."""
         landmarks, grid = self.landmarks, self.grid
         px = _sized(item, self.cell_size_m)
-        blobs = _SIDE.submit(goal_blobs, px.image, px.valid)
+        blobs = None if movers_only else _SIDE.submit(goal_blobs, px.image, px.valid)
+        coloured = _SIDE.submit(mover_pixels, px.image, px.valid)
         view = _registered(px, landmarks, self.cell_size_m)
         reg = view.reg
         report = FrameReport(int(view.frame.meta.seq), reg.source, reg.landmarks, reg.reprojection_px,
@@ -171,13 +185,24 @@ class Fusion:
             x, y = cell[0] - cells.x0, cell[1] - cells.y0
             return 0 <= y < trusted.shape[0] and 0 <= x < trusted.shape[1] and bool(trusted[y, x])
 
+        # A mover stands on floor and is drawn bright enough for the occupancy split to read its cell
+        # so: the warm haze a blurred forklift casts over a shelf beside it is no mover on that shelf.
+        reading.movers = [m for m in movers_from(coloured.result(), view, grid)
+                          if m.cell not in self.shelf_cells and inside(m.cell)
+                          and cells.free[m.cell[1] - cells.y0, m.cell[0] - cells.x0]]
+        reading.movers_read = True
+        if movers_only:
+            return reading
         reading.goals = {g for g in goals_from(blobs.result(), view, grid) - self.shelf_cells if inside(g)}
+        standing = {m.cell for m in reading.movers}
+        for x, y in standing:   # no marker is there, whatever contrast a forklift's forks or the blur give it
+            cells.marker_like[y - cells.y0, x - cells.x0] = False
         ys, xs = np.nonzero(cells.marker_like & trusted)
         marked = {(int(x) + cells.x0, int(y) + cells.y0) for x, y in zip(xs, ys)} - self.shelf_cells
         # The detector looks wider: at half a marker's contrast (blur dims a marker's white below
         # the in-place test's).
         ys, xs = np.nonzero((cells.contrast > DETECT_CONTRAST) & trusted)
-        near = {(int(x) + cells.x0, int(y) + cells.y0) for x, y in zip(xs, ys)} - self.shelf_cells
+        near = {(int(x) + cells.x0, int(y) + cells.y0) for x, y in zip(xs, ys)} - self.shelf_cells - standing
         # Read in place: the marker-like cells, and the goals the detector looks at. A robot parked
         # on its goal shows its marker inside the pad's green frame, which keeps the cell under the
         # marker-like test (blur 2 on the 450 floor: 3 of 10 parked robots went unread, and the
@@ -192,10 +217,14 @@ class Fusion:
     def merge(self, reading: Reading) -> None:
         """Fold one measured frame into the model."""
         self.reports.append(reading.report)
+        self.last_movers = list(reading.movers)
+        self.last_checked = np.zeros_like(self.seen)
         cells = reading.cells
         if cells is None:
             return
         sl = (slice(cells.y0, cells.y0 + cells.seen.shape[0]), slice(cells.x0, cells.x0 + cells.seen.shape[1]))
+        if reading.movers_read:   # an image placed by the pose estimate alone says nothing of them
+            self.last_checked[sl] = reading.trusted
         self.best = max(self.best, reading.view.sharpness)   # what a registered view of this quality would weigh
         w = reading.weight
         self.vote[sl] += w * np.where(cells.free, 1.0, -1.0)
@@ -204,15 +233,29 @@ class Fusion:
         if not reading.markers:
             return
         self.goals |= reading.goals
+        self._look_for_movers(reading)
         self.marker_vote[sl] += w * (cells.marker_like & reading.trusted)
         self.warnings += reading.warnings
         self.sightings += reading.sightings
         self.faint += reading.faint
 
+    def _look_for_movers(self, reading: Reading) -> None:
+        """The movers of this frame replace what older frames showed in the cells it trusts: movers
+        walk on, and the latest look at a cell is the one to go by."""
+        cells, trusted = reading.cells, reading.trusted
+        for cell in list(self.mover_at):
+            x, y = cell[0] - cells.x0, cell[1] - cells.y0
+            if 0 <= y < trusted.shape[0] and 0 <= x < trusted.shape[1] and trusted[y, x]:
+                del self.mover_at[cell]
+        for m in reading.movers:
+            self.mover_at[m.cell] = m.kind
+            self.mover_cells.add(m.cell)
+
     def model(self) -> WorldModel:
         """The world model of every frame added so far."""
         vote, total, seen, landmarks = self.vote, self.total, self.seen.copy(), self.landmarks
         shelf_cells, goals, reports = self.shelf_cells, set(self.goals), self.reports
+        standing = self.mover_cells
         width, height = self.grid
         warnings = list(self.warnings)
         free = (vote > 0) & seen
@@ -227,14 +270,14 @@ class Fusion:
         # A marker most views agree on: one misregistered view's contrast at a shelf edge is not one.
         marker_like = self.marker_vote > 0.5 * total
         marked = {(int(x), int(y)) for y, x in zip(*np.nonzero(marker_like))} - shelf_cells
-        unidentified = sorted(marked - robot_cells - goals)
+        unidentified = sorted(marked - robot_cells - goals - standing)
         if self.faint and self.known_ids is not None and len(robots) < len(self.known_ids):
-            doubt = {cell for cell, _ in self.faint} - robot_cells - goals - shelf_cells
+            doubt = {cell for cell, _ in self.faint} - robot_cells - goals - shelf_cells - standing
             robots.update(read_faint(self.faint, doubt, sorted(self.known_ids), set(robots), warnings))
             robot_cells = set(robots.values())
-            unidentified = sorted(marked - robot_cells - goals)
-        for x, y in list(robot_cells) + list(goals) + unidentified:
-            free[y, x] = seen[y, x] = True   # floor under a robot or a goal marker
+            unidentified = sorted(marked - robot_cells - goals - standing)
+        for x, y in list(robot_cells) + list(goals) + unidentified + list(standing):
+            free[y, x] = seen[y, x] = True   # floor under a robot, a goal marker, a person, a forklift or a pallet
             unsure_mask[y, x] = False
         if unidentified:
             warnings.append(f"{len(unidentified)} marker(s) seen but not read, at {unidentified[:5]}")
@@ -248,7 +291,8 @@ class Fusion:
                             f"seq {estimated[:5]}")
         return WorldModel(free=free, robots=robots, goals=sorted(goals), seen=seen,
                           unseen=int(width * height - seen.sum()), unidentified=unidentified, warnings=warnings,
-                          unsure=unsure, frames=list(reports))
+                          unsure=unsure, frames=list(reports),
+                          movers=[MoverSighting(kind, cell) for cell, kind in sorted(self.mover_at.items())])
 
 
 def perceive(frames: list[Frame | CameraFrame], width: int, height: int, cell_size_m: float,

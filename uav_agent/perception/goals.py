@@ -39,7 +39,7 @@ def goal_blobs(image: np.ndarray, valid: np.ndarray | None) -> Blobs:
     """The pad-coloured blobs of an undistorted BGR image (`valid`: its pixels from the sensor).
     The image alone decides them, so they are found while the image is being registered."""
     hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
-    bright = _percentile(cv2.calcHist([hsv], [2], None, [256], [0, 256]).ravel(), 95)
+    bright = histogram_percentile(cv2.calcHist([hsv], [2], None, [256], [0, 256]).ravel(), 95)
     # Whole grey levels: v >= x is v >= ceil(x). One inRange pass instead of three compares.
     low = (GREEN_HUE[0], 0, math.ceil(DARK_FRACTION * bright))
     mask = cv2.inRange(hsv, low, (GREEN_HUE[1], 255, 255))
@@ -79,7 +79,7 @@ def goals_from(blobs: Blobs, view: View, grid: tuple[int, int]) -> set[Cell]:
     return goals
 
 
-def _percentile(counts: np.ndarray, q: float) -> float:
+def histogram_percentile(counts: np.ndarray, q: float) -> float:
     """np.percentile (linear) of the values a histogram of whole levels counts, without sorting
     the 12 million pixels it was taken from."""
     cum = np.cumsum(np.asarray(counts, np.int64))

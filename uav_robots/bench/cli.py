@@ -22,6 +22,7 @@ BENCHMARKS = {
     "mission": "mission",
     "faults": "faults",
     "camera": "camera",
+    "movers": "movers",
 }
 
 

@@ -45,7 +45,9 @@ def write_views(out: Path, samples: list, fleet: str, rows: list[str], quiet: bo
             dropped = recording.bound(rec, last)
             if dropped:
                 print(recording.dropped_line(dropped, last), file=sys.stderr, flush=True)
-            if ahead is None or not ahead.take(samples, rows, video_path, last):
+            # The draft drew the movers as heard; the world's record may place some otherwise (a merged tick).
+            retraced = recording.take_trace(rec, report)
+            if ahead is None or retraced or not ahead.take(samples, rows, video_path, last):
                 replay.render(rec, outputs.partial(video_path), cancel=cancel)
                 outputs.partial(video_path).replace(video_path)
         except Exception as exc:  # noqa: BLE001 - as above

@@ -1,7 +1,8 @@
 """mission.mcap: a mission in the MCAP format, JSON-encoded channels with JSON schemas, so Foxglove opens it.
 
 Written from what an observer received on the wire (plans, ticks, robot states, done flags, mission
-status, end and events, the UAV's camera images and pose feed) plus the world's floor (details.json's `truth` rows,
+status, end and events, the UAV's camera images and pose feed, the world's movers after each tick on a
+floor with people, forklifts or pallets: `/world/movers`) plus the world's floor (details.json's `truth` rows,
 the map the robots moved on). Camera images use
 Foxglove's `foxglove.CompressedImage`, the vehicle's pose `foxglove.PoseInFrame` (from its VehiclePose feed,
 about 5 Hz; from each image's pose when a UAV sends no feed), the floor `foxglove.Grid`;
@@ -34,7 +35,7 @@ MCAP = "mission.mcap"
 _TOPICS = {"tick": ("/fleet/tick", "Tick"), "plan": ("/fleet/plan", "Plan"), "ack": ("/fleet/ack", "PlanAck"),
            "state": ("/fleet/state", "RobotState"), "done": ("/fleet/done", "Done"),
            "mission/status": ("/mission/status", "MissionStatus"), "mission/end": ("/mission/end", "MissionEnd"),
-           "mission/event": ("/mission/event", "MissionEvent")}
+           "mission/event": ("/mission/event", "MissionEvent"), "world/movers": ("/world/movers", "FloorMovers")}
 
 _TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
 _VEC3 = {"type": "object", "properties": {a: {"type": "number"} for a in "xyz"}}
@@ -69,7 +70,8 @@ def _topic(prefix: str, key: str) -> tuple[str, str] | None:
     return _TOPICS.get(tail)
 
 
-DRAWN_TOPICS = frozenset({"/fleet/state", "/fleet/plan", "/fleet/tick"})   # what replay.render draws, with /map
+# What replay.render draws, with /map.
+DRAWN_TOPICS = frozenset({"/fleet/state", "/fleet/plan", "/fleet/tick", "/world/movers"})
 
 
 def drawn(prefix: str, key: str) -> bool:
@@ -200,6 +202,10 @@ class Recording:
     horizon: int = 0                                          # the last tick of any recorded plan
     end: dict[str, Any] | None = None
     counts: dict[str, int] = field(default_factory=dict)
+    # tick -> the floor's movers after it, {id: (kind, cell)}: as heard (the world's FloorMovers, a tick
+    # now and then merged into the next), or every tick from the world's record (`take_trace`)
+    movers: dict[int, dict[int, tuple[str, tuple[int, int]]]] = field(default_factory=dict)
+    contacts: list[int] = field(default_factory=list)        # the ticks of robot-mover contacts, when known
 
 
 def read_mcap(path: Path) -> Recording:
@@ -248,6 +254,9 @@ def _take(rec: Recording, topic: str, body: dict[str, Any], log_time: int) -> No
     if topic == "/fleet/state":
         rec.cells.setdefault(body["robot"], {})[body["tick"]] = tuple(body["cell"])
         rec.ticks = max(rec.ticks, body["tick"])
+    elif topic == "/world/movers":
+        # Not in `ticks`: the robots' states and the Ticks say how long the mission was.
+        rec.movers[body["tick"]] = {mid: (kind, tuple(cell)) for mid, kind, cell in body["movers"]}
     elif topic == "/fleet/plan":
         rec.goals[body["robot"]] = tuple(body["goal"])
         rec.paths[body["robot"]] = [tuple(c) for c in body["path"]]
@@ -308,11 +317,66 @@ def bound(rec: Recording, last: int) -> int:
         dropped += len(late)
         if not by_tick:
             del rec.cells[rid]
+    late = [t for t in rec.movers if t > last]
+    for t in late:
+        del rec.movers[t]
+    dropped += len(late)
     kept = [(ns, k) for ns, k in rec.tick_times if k <= last]
     dropped += len(rec.tick_times) - len(kept)
     rec.tick_times = kept
     rec.ticks = max([k for _, k in kept] + [t for by_tick in rec.cells.values() for t in by_tick] + [0])
     return dropped
+
+
+def movers_per_tick(rec: Recording) -> list[dict[int, tuple[str, tuple[int, int]]]]:
+    """The floor's movers at ticks 0..rec.ticks: a tick none was heard for keeps the last heard (the world
+    merged it into the next: nobody moved as far as a viewer knows); none before the first."""
+    out, last = [], {}
+    for t in range(rec.ticks + 1):
+        last = rec.movers.get(t, last)
+        out.append(last)
+    return out
+
+
+_PLURAL = {"person": "people", "forklift": "forklifts", "pallet": "pallets"}
+
+
+def mover_kinds(kinds: Iterable[str]) -> str:
+    """How many of each kind, in words: "2 people, 1 forklift"."""
+    counts: dict[str, int] = {}
+    for kind in kinds:
+        counts[kind] = counts.get(kind, 0) + 1
+    return ", ".join(f"{n} {kind if n == 1 else _PLURAL.get(kind, kind)}" for kind, n in sorted(counts.items()))
+
+
+def take_trace(rec: Recording, report: dict[str, Any] | None) -> bool:
+    """The movers of every tick from the world's record (report.json's `truth.movers`: each mover's cell
+    after every tick, the robot-mover contacts) in place of those heard; True if a replay then draws them
+    otherwise than from the recording alone (a tick the world's publisher merged into the next). A record
+    without a trace, or one that does not read, leaves `rec` as heard."""
+    truth = ((report or {}).get("truth") or {}).get("movers") or {}
+    try:
+        traced = _traced(truth)
+        contacts = sorted(int(c["tick"]) for c in truth.get("contacts", []))
+    except (AttributeError, KeyError, TypeError, ValueError):
+        return False
+    if not traced:
+        return False
+    heard = movers_per_tick(rec)
+    rec.movers, rec.contacts = traced, contacts
+    return movers_per_tick(rec) != heard or bool(contacts)
+
+
+def _traced(truth: dict[str, Any]) -> dict[int, dict[int, tuple[str, tuple[int, int]]]]:
+    """tick -> {id: (kind, cell)} from the world's trace (index t: the cell after tick t)."""
+    kinds = {str(m["id"]): (str(m["kind"]), int(m.get("appears", 0))) for m in truth.get("movers", [])}
+    traced: dict[int, dict[int, tuple[str, tuple[int, int]]]] = {}
+    for mid, cells in (truth.get("trace") or {}).items():
+        kind, appears = kinds.get(mid, ("", 0))
+        for t, (x, y) in enumerate(cells):
+            if t >= appears:      # a pallet dropped mid-mission is not on the floor before
+                traced.setdefault(t, {})[int(mid)] = (kind, (int(x), int(y)))
+    return traced
 
 
 def dropped_line(dropped: int, last: int) -> str:

@@ -1,4 +1,5 @@
-"""replay.mp4 from mission.mcap: robots as coloured discs with their ids, trails, a tick counter and a legend.
+"""replay.mp4 from mission.mcap: robots as coloured discs with their ids, trails, a tick counter and a legend;
+on a floor with movers, each tick's people (orange dots), forklifts (yellow bars) and pallets (blue squares).
 
 On a large floor a robot is far smaller than a readable disc, so the video shows the region the robots
 use (their cells, plans and goals, with a margin) and draws every disc at least `MIN_RADIUS_PX` whatever
@@ -15,7 +16,7 @@ import numpy as np
 
 from uav_agent.visualize import FLOOR, SHELF, _palette
 
-from .recording import Recording
+from .recording import Recording, mover_kinds, movers_per_tick
 
 VIDEO = "replay.mp4"
 MAX_SIDE_PX = 1400      # the map part of a frame, before the legend
@@ -24,6 +25,9 @@ TRAIL = 12              # ticks of trail behind each robot
 LEGEND_PX = 300
 FPS = 10
 FONT = cv2.FONT_HERSHEY_SIMPLEX
+# BGR, as the live view's: no robot's disc and id, no goal's ring; the shape tells a mover from a robot.
+MOVER_BGR = {"person": (14, 127, 255), "forklift": (0, 212, 255), "pallet": (214, 95, 31)}
+MOVER_INK = (34, 34, 34)
 
 
 def region(rec: Recording, margin: int = 3) -> tuple[int, int, int, int]:
@@ -85,6 +89,7 @@ def render(rec: Recording, path: Path, fps: int = FPS, cancel: threading.Event |
         if rid in colours:
             cv2.circle(base, px(goal), r, colours[rid], 2, cv2.LINE_AA)
     pos = _positions(rec)
+    movers = movers_per_tick(rec) if rec.movers else []
     # Each robot's pixel per tick and its label's layout, once: per frame and robot they cost more
     # than the drawing (a 1,000-robot mission's 176 frames took 14 s).
     at = {rid: np.array([px(c) for c in pos[rid]], np.int32) for rid in ids}
@@ -116,7 +121,10 @@ def render(rec: Recording, path: Path, fps: int = FPS, cancel: threading.Event |
                 cv2.circle(frame, centre, r, (0, 0, 0), 1, cv2.LINE_AA)
                 label, dx, dy, scale, ink = labels[rid]
                 cv2.putText(frame, label, (centre[0] - dx, centre[1] + dy), FONT, scale, ink, 1, cv2.LINE_AA)
-            _legend(frame, mw + 10, t, rec.ticks, arrived, len(ids), (x0, y0, x1, y1), colours)
+            if movers:
+                _draw_movers(frame, movers[t], px, r, (x0, y0, x1, y1))
+            _legend(frame, mw + 10, t, rec.ticks, arrived, len(ids), (x0, y0, x1, y1), colours,
+                    _movers_lines(movers[t], rec.contacts, t) if movers else [])
             writer.write(frame)
     finally:
         writer.release()
@@ -159,10 +167,39 @@ def _label_layout(label: str, r: int, scale: float, colour) -> tuple[str, int, i
     return label, tw // 2, th // 2, scale, ink
 
 
-def _legend(frame: np.ndarray, x: int, t: int, ticks: int, arrived: int, n: int, box, colours) -> None:
+def _draw_movers(frame: np.ndarray, movers: dict, px, r: int, box) -> None:
+    """Over the robots (a mover on a robot's cell is a collision: both stay in sight, the disc around the
+    mover); those outside the drawn region are left out, as the floor there is."""
+    x0, y0, x1, y1 = box
+    for kind, cell in movers.values():
+        if not (x0 <= cell[0] < x1 and y0 <= cell[1] < y1):
+            continue
+        cx, cy = px(cell)
+        colour = MOVER_BGR.get(kind, (150, 150, 150))
+        if kind == "person":
+            cv2.circle(frame, (cx, cy), max(3, r // 2), colour, -1, cv2.LINE_AA)
+            cv2.circle(frame, (cx, cy), max(3, r // 2), MOVER_INK, 1, cv2.LINE_AA)
+            continue
+        hw, hh = (r * 9 // 10, r * 11 // 20) if kind == "forklift" else (r * 13 // 20, r * 13 // 20)
+        cv2.rectangle(frame, (cx - hw, cy - hh), (cx + hw, cy + hh), colour, -1)
+        cv2.rectangle(frame, (cx - hw, cy - hh), (cx + hw, cy + hh), MOVER_INK, 1)
+
+
+def _movers_lines(movers: dict, contacts: list[int], t: int) -> list[tuple[str, float, int]]:
+    """The legend's lines of a floor with movers: how many stand on it and, from the world's record, the
+    robot-mover contacts up to this tick."""
+    lines = [(f"movers {len(movers)}: " + mover_kinds(kind for kind, _ in movers.values()), 0.45, 1),
+             ("dot person, bar forklift, square pallet", 0.45, 1)]
+    if contacts:
+        lines.append((f"robot-mover contacts {sum(1 for c in contacts if c <= t)}/{len(contacts)}", 0.45, 1))
+    return lines
+
+
+def _legend(frame: np.ndarray, x: int, t: int, ticks: int, arrived: int, n: int, box, colours,
+            extra: list[tuple[str, float, int]] | None = None) -> None:
     lines = [(f"tick {t}/{ticks}", 0.8, 2), (f"on goal {arrived}/{n}", 0.6, 1),
              (f"cells x {box[0]}-{box[2] - 1}, y {box[1]}-{box[3] - 1}", 0.45, 1),
-             ("disc: robot (id), ring: its goal", 0.45, 1), ("line: its last moves", 0.45, 1)]
+             ("disc: robot (id), ring: its goal", 0.45, 1), ("line: its last moves", 0.45, 1), *(extra or [])]
     y = 32
     for text, scale, thick in lines:
         cv2.putText(frame, text, (x, y), FONT, scale, (0, 0, 0), thick, cv2.LINE_AA)
@@ -176,10 +213,14 @@ def _legend(frame: np.ndarray, x: int, t: int, ticks: int, arrived: int, n: int,
         cv2.putText(frame, str(rid), (cx + 10, cy + 5), FONT, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
 
 
-def timeline(rec: Recording) -> dict:
-    """The whole mission for the view's replay mode: cells per tick, plans, events, images with their tick."""
+def timeline(rec: Recording, report: dict | None = None) -> dict:
+    """The whole mission for the view's replay mode: cells per tick, plans, events, images with their tick;
+    on a floor with movers, each mover's kind and cell per tick (null before it came onto the floor) and,
+    from `report`, the robot-mover collisions and near misses."""
     import base64
     import bisect
+
+    from ..view.state import movers_outcome
 
     times = [ns for ns, _ in sorted(rec.tick_times)]
     poses = sorted(rec.poses, key=lambda p: p[0])
@@ -195,4 +236,16 @@ def timeline(rec: Recording) -> dict:
     return {"ticks": rec.ticks, "robots": {str(r): [list(c) for c in cells] for r, cells in _positions(rec).items()},
             "goals": {str(r): list(g) for r, g in rec.goals.items()},
             "paths": {str(r): [list(c) for c in p] for r, p in rec.paths.items()},
-            "events": rec.events, "images": images, "end": rec.end}
+            "events": rec.events, "images": images, "end": rec.end,
+            **({"movers": _mover_cells(rec)} if rec.movers else {}),
+            **({"movers_outcome": outcome} if (outcome := movers_outcome(report or {})) else {})}
+
+
+def _mover_cells(rec: Recording) -> dict[str, dict]:
+    """{id: {kind, cells: [[x, y] or None per tick]}}: each mover's track for the view's time slider."""
+    per_tick = movers_per_tick(rec)
+    out: dict[str, dict] = {}
+    for t, movers in enumerate(per_tick):
+        for mid, (kind, cell) in movers.items():
+            out.setdefault(str(mid), {"kind": kind, "cells": [None] * len(per_tick)})["cells"][t] = list(cell)
+    return out

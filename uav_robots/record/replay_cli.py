@@ -23,7 +23,7 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def replay_command(args: argparse.Namespace) -> int:
-    from .recording import MCAP, bound, dropped_line, last_tick, read_mcap
+    from .recording import MCAP, bound, dropped_line, last_tick, read_mcap, take_trace
     from ..common.outputs import partial
     from .replay import VIDEO, render
 
@@ -34,10 +34,12 @@ def replay_command(args: argparse.Namespace) -> int:
         rec = read_mcap(directory / MCAP)
     except Exception as exc:  # noqa: BLE001 - a damaged or foreign file is bad input
         raise UavRobotsError(f"{directory / MCAP}: not a readable uav-robots recording: {exc}") from None
-    last = last_tick(_report(directory), rec)
+    report = _report(directory)
+    last = last_tick(report, rec)
     dropped = bound(rec, last)
     if dropped:
         print(dropped_line(dropped, last), file=sys.stderr, flush=True)
+    take_trace(rec, report)    # the movers of every tick, as the world recorded them, where it did
     draft = partial(directory / VIDEO)    # an earlier replay.mp4 stays until the new one is whole
     try:
         frames, w, h = render(rec, draft)
@@ -45,15 +47,16 @@ def replay_command(args: argparse.Namespace) -> int:
     except OSError as exc:
         draft.unlink(missing_ok=True)
         raise MissionError(f"could not write {directory / VIDEO}: {exc.strerror or exc}") from None
-    print(f"{directory / VIDEO}: {frames} frames, {w}x{h} px, ticks 0-{rec.ticks}, {len(rec.cells)} robots",
-          flush=True)
+    movers = len({m for at in rec.movers.values() for m in at})
+    print(f"{directory / VIDEO}: {frames} frames, {w}x{h} px, ticks 0-{rec.ticks}, {len(rec.cells)} robots"
+          + (f", {movers} movers" if movers else ""), flush=True)
     if args.view is not None:
         from .replay import timeline
         from ..view.live import hold
         from ..view.server import ViewServer
 
         try:
-            server = ViewServer(args.view, rec.free, timeline=timeline(rec))
+            server = ViewServer(args.view, rec.free, timeline=timeline(rec, report))
         except OSError as exc:
             raise UavRobotsError(f"--view {args.view}: cannot serve there: {exc.strerror or exc}") from None
         print(f"uav-robots: recorded mission at {server.url}", flush=True)

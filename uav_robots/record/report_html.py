@@ -1,8 +1,9 @@
 """report.html: a mission's report for people, one self-contained file (inline SVG, no external asset).
 
 The summary, robots on their goals per tick, planned against executed (makespan, sum of costs, each
-robot's deviation) and the phases' timing bar, all computed from the mission's report (report.json with
-details.json and plan.json).
+robot's deviation), the phases' timing bar and, on a floor with people, forklifts or pallets, the movers
+and the robots' contacts with them, all computed from the mission's report (report.json with details.json
+and plan.json).
 """
 from __future__ import annotations
 
@@ -10,6 +11,8 @@ import html
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from .recording import mover_kinds
 
 REPORT_HTML = "report.html"
 PHASE_COLOURS = ["#4e79a7", "#f28e2b", "#e15759", "#76b7b2", "#59a14f", "#edc948", "#b07aa1", "#ff9da7",
@@ -88,6 +91,27 @@ def _timing_svg(timings: dict[str, float], w: int = 640) -> str:
             f'<p class="keys">{" &nbsp; ".join(keys)}</p>')
 
 
+def _movers_section(report: dict[str, Any]) -> str:
+    """The floor's movers: how many of each kind, robot-mover collisions and near misses, each contact; nothing
+    on a floor without movers (report.json then has no `movers`)."""
+    if not report.get("movers"):
+        return ""
+    truth = (report.get("truth") or {}).get("movers") or {}
+    kinds = mover_kinds(str(m.get("kind", "?")) for m in truth.get("movers", []))
+    rows = [("movers on the floor", f"{report['movers']}" + (f" ({kinds})" if kinds else "")),
+            ("robot-mover collisions", report.get("mover_collisions", 0)),
+            ("near misses (a robot within one cell of a mover)", report.get("near_misses", 0)),
+            ("ticks with a robot near a mover (robot-mover pairs)", report.get("near_miss_ticks", 0))]
+    table = "".join(f"<tr><th>{_esc(k)}</th><td>{_esc(v)}</td></tr>" for k, v in rows)
+    contacts = "".join("<tr>" + "".join(f"<td>{_esc(v)}</td>" for v in (
+                           c.get("tick"), c.get("robot"), c.get("mover"), ", ".join(map(str, c.get("cell") or [])),
+                           c.get("how"))) + "</tr>" for c in truth.get("contacts", []))
+    return ("<h2>People, forklifts and pallets</h2>\n"
+            f'<table id="movers">{table}</table>\n'
+            + (f'<p>Robot-mover contacts, as the world judged them:</p>\n<table id="mover-contacts"><tr><th>tick</th>'
+               f"<th>robot</th><th>mover</th><th>cell</th><th>how</th></tr>{contacts}</table>\n" if contacts else ""))
+
+
 def render(report: dict[str, Any]) -> str:
     rows = compare(report)
     metrics = (report.get("plan") or {}).get("metrics", {})
@@ -127,7 +151,7 @@ th,td{{border:1px solid #ccc;padding:3px 8px;text-align:left}} .keys{{font-size:
 <h2>Time per phase</h2>
 {_timing_svg(report.get('timings', {}))}
 {f'<p>whole run: {wall:.2f} s wall</p>' if wall else ''}
-<h2>Events</h2>
+{_movers_section(report)}<h2>Events</h2>
 <table id="events"><tr><th>tick</th><th>kind</th><th>robots</th><th>what</th><th>action</th></tr>{events}</table>
 </body></html>
 """

@@ -9,6 +9,7 @@ from pathlib import Path
 from protocol.errors import MissionError, UavRobotsError
 from protocol.faults import help_line as fault_help
 from protocol.run_spec import add_spec_argument
+from scenarios.scene import add_mover_arguments
 
 from ..common.robot_groups import robot_groups
 from ..view.arguments import add_view_arguments
@@ -41,6 +42,7 @@ def add_run_parser(sub) -> None:
                         "landmarks; realistic: goal pads, a surveyed landmark every 12 cells) then keys over it, "
                         "e.g. 'landmark_spacing=8' (default: the camera preset's namesake)")
     add_ground_station_arguments(p)
+    add_mover_arguments(p)
     p.add_argument("--autopilot", default=None, metavar="URL",
                    help="fly whatever autopilot answers on this MAVLink link (the UAV's: PX4 SITL's API port, "
                         "e.g. udpin://0.0.0.0:14540) instead of starting our vehicle process; needs --autopilot-pose")
@@ -66,6 +68,9 @@ def add_run_parser(sub) -> None:
     p.add_argument("--monitor-every", type=int, default=None, metavar="K",
                    help="while the robots move, the UAV takes an image every K ticks and checks every robot "
                         "it sees against the plan (default: automatic, at most 20 %% of the execution time; 0: never)")
+    p.add_argument("--look-every", type=int, default=None, metavar="L",
+                   help="with movers on the floor: the UAV looks for them every L ticks and checks every step "
+                        "against where they may be (default: every 2 once its survey saw one; 0: never)")
     p.add_argument("--tick-timeout", type=float, default=10.0, metavar="S",
                    help="seconds a robot may take to report a tick before it counts as stalled (default 10)")
     p.add_argument("--tick-rate", type=float, default=0.0, metavar="HZ",
@@ -118,7 +123,8 @@ def check_arguments(args) -> tuple[str, object]:
     from scenarios.floor import setup_floor
     from scenarios.limits import check_fleet
     from sim_world.camera import CameraModel
-    from scenarios.scene import scene_options
+    from scenarios.scene import scene_of_args
+    from sim_world.traffic import build_traffic
     from sim_world.camera.model import camera_options, camera_preset
     from sim_world.config import DRONE_CAMERA, MOVE_BATCH_TIMEOUT_S, WorldConfig, vehicle_config
 
@@ -138,6 +144,8 @@ def check_arguments(args) -> tuple[str, object]:
         _number("--robots-per-process", args.robots_per_process, 1, MAX_ROBOTS)
     if args.monitor_every is not None:
         _number("--monitor-every", args.monitor_every, 0, 10**6)
+    if args.look_every is not None:
+        _number("--look-every", args.look_every, 0, 10**6)
     # Everyone waits for the world's batch when one robot is silent: a shorter deadline would call the
     # whole fleet stalled.
     _number("--tick-timeout", args.tick_timeout, MOVE_BATCH_TIMEOUT_S, 3600, lo_open=True)
@@ -158,7 +166,7 @@ def check_arguments(args) -> tuple[str, object]:
         CameraModel(**{**DRONE_CAMERA, **camera_options(args.camera)})
     except (MissionError, TypeError) as exc:
         raise UavRobotsError(f"--camera {args.camera!r}: {exc}") from None
-    scene_options(args.scene, camera_preset(args.camera))
+    scene = scene_of_args(args, camera_preset(args.camera))
     if args.wobble is not None:
         _number("--wobble", args.wobble, 0, 30)
     if not args.autopilot:
@@ -189,4 +197,5 @@ def check_arguments(args) -> tuple[str, object]:
             raise UavRobotsError(f"--secure: at most {MAX_ROBOT_PROCESSES} robot processes (identities); "
                                  f"host more robots per process (--robots-per-process)")
     floor = setup_floor(args.map, args.seed, args.robots, args.scen)
+    build_traffic(scene, floor.free, floor.starts, floor.goals, args.seed)
     return floor.name, floor.free

@@ -84,7 +84,7 @@ def finish(args, launcher: "Launcher", uav: Child | None, code: int, samples: li
     if not kept:
         shutil.rmtree(out, ignore_errors=True)
     if view is not None and launcher.signalled is None:
-        view.hold(args.view_hold)
+        view.hold(args.view_hold, report)
     elif view is not None:
         view.hold(0)
     return code

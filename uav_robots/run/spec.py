@@ -3,6 +3,7 @@ checked, written to OUT/run.json for every process the run starts; `run --spec F
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 from protocol.run_spec import (RUN_JSON, CameraSpec, HostingSpec, LimitsSpec, PlanningSpec, RunSpec, VehicleSpec,
@@ -22,7 +23,8 @@ RUN_FIELDS = {
     "--connectivity": lambda s: s.planning.connectivity, "--time-limit": lambda s: s.planning.time_limit_s,
     "--no-fallback": lambda s: not s.planning.fallback,
     "--tick-timeout": lambda s: s.limits.tick_timeout_s, "--tick-rate": lambda s: s.limits.tick_rate_hz,
-    "--monitor-every": lambda s: s.limits.monitor_every, "--timeout": lambda s: s.limits.timeout_s,
+    "--monitor-every": lambda s: s.limits.monitor_every, "--look-every": lambda s: s.limits.look_every,
+    "--timeout": lambda s: s.limits.timeout_s,
     "--robots-per-process": lambda s: s.hosting.robots_per_process, "--secure": lambda s: s.hosting.secure,
 }
 
@@ -40,16 +42,17 @@ def _whole(path: str | None) -> str | None:
 def spec_of(args: argparse.Namespace) -> RunSpec:
     """The checked arguments as a spec (resolved: the time scale, 10 for our vehicle and 1 for another
     autopilot; the scene and the wobble the camera preset's when not given; the files it names whole)."""
-    from scenarios.scene import scene_options
+    from scenarios.scene import scene_of_args
     from sim_world.camera.model import camera_preset
     from sim_world.vehicle.config import WOBBLE_OF_CAMERA_PRESET
 
     preset = camera_preset(args.camera)
     wobble = args.wobble if args.wobble is not None else WOBBLE_OF_CAMERA_PRESET[preset]
+    scene = scene_of_args(args, preset)
     return RunSpec(
         map=_whole(args.map), robots=args.robots, seed=args.seed, scen=_whole(args.scen),
         camera=CameraSpec(source=args.camera_source, model=args.camera),
-        scene=scene_options(args.scene, preset),
+        scene=dataclasses.replace(scene, routes=_whole(scene.routes)),
         vehicle=VehicleSpec(preset=args.vehicle_preset, time_scale=float(args.time_scale),
                             wobble_deg=float(wobble), autopilot=args.autopilot,
                             autopilot_pose=args.autopilot_pose, autopilot_origin=args.autopilot_origin, gcs=args.gcs,
@@ -58,7 +61,8 @@ def spec_of(args: argparse.Namespace) -> RunSpec:
         planning=PlanningSpec(planner=args.planner, assign=args.assign, connectivity=args.connectivity,
                               time_limit_s=float(args.time_limit), fallback=not args.no_fallback),
         limits=LimitsSpec(tick_timeout_s=float(args.tick_timeout), tick_rate_hz=float(args.tick_rate),
-                          monitor_every=args.monitor_every, timeout_s=float(args.timeout)),
+                          monitor_every=args.monitor_every,
+                          look_every=args.look_every, timeout_s=float(args.timeout)),
         hosting=HostingSpec(robots_per_process=args.robots_per_process, secure=_whole(args.secure)))
 
 

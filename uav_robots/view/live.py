@@ -45,9 +45,13 @@ class LiveView:
     def follow(self, observer) -> None:
         self.pump = Pump(observer.since, self.state)
 
-    def hold(self, seconds: float | None) -> None:
+    def hold(self, seconds: float | None, report: dict | None = None) -> None:
+        """Serve on after the mission; `report` (report.json, when written) adds what only it knows: the
+        robot-mover collisions and near misses of a floor with movers."""
         if self.pump is not None:
             self.pump.close()
+        if report:
+            self.state.report(report)
         try:
             hold(self.url, seconds)
         finally:

@@ -36,6 +36,7 @@ from .grid_kernels import (
     heap_push,
 )
 from .reservations import (
+    NEVER,
     Reservations,
     edge_blocked,
     interval,
@@ -124,7 +125,7 @@ def hm_grow(keys: np.ndarray, vals: np.ndarray, meta: np.ndarray):
 # structures: the loop runs once per state and per move (see grid_kernels on why).
 
 @njit(cache=True, inline='always')
-def _key(f: int, arrive: int) -> int:
+def heap_key(f: int, arrive: int) -> int:
     """Open-list order: lowest f first, then the latest arrival (the closest to the goal)."""
     return np.int64(f) * BIG + (BIG - 1 - arrive)
 
@@ -144,11 +145,13 @@ def _grow_deferred(d_state, d_slot, d_ival, need: int):
 # (perf on a built refine: NRT_incref/decref 29 % of the samples, 22 % after; refinement rounds of
 # 400 robots on warehouse-10-20-10-2-1 in 1.5 s, random-1..5 twice in turn: 3,630 against 3,042).
 @njit(cache=True, _nrt=False)
-def _reach(seg, ta, geo: Geometry, v: int, t: int, last: int, u: int, iu: int, parked: bool):
+def reach(seg, ta, geo: Geometry, v: int, t: int, last: int, u: int, iu: int, parked: bool,
+          shut: int = NEVER, opens: int = NEVER):
     """The paper's getSuccessors for the move v -> u: from v (reached at step t, free until
     step `last`), the first of u's safe intervals from index iu on that the robot can move
-    into, at the earliest step without a swap or crossing: (interval index, arrival step), or
-    (-1, -1)."""
+    into, at the earliest step without a swap or crossing and outside the stretch [shut, opens]
+    in which u is closed to entry (a mover's forecast, `dynamic.py`; never, by default):
+    (interval index, arrival step), or (-1, -1)."""
     lu = seg[u, 1]
     while iu <= lu:
         if iu == lu and parked:
@@ -158,8 +161,13 @@ def _reach(seg, ta, geo: Geometry, v: int, t: int, last: int, u: int, iu: int, p
         if arrive > last + 1:
             break
         limit = min(hi, last + 1)
-        while arrive <= limit and edge_blocked(seg, ta, geo, v, u, arrive - 1):
-            arrive += 1
+        while arrive <= limit:
+            if shut <= arrive <= opens:
+                arrive = opens + 1          # wait (on v) until u opens again
+            elif edge_blocked(seg, ta, geo, v, u, arrive - 1):
+                arrive += 1
+            else:
+                break
         if arrive <= limit:
             return iu, arrive
         iu += 1
@@ -167,13 +175,15 @@ def _reach(seg, ta, geo: Geometry, v: int, t: int, last: int, u: int, iu: int, p
 
 
 @njit(cache=True)
-def _path(cell, arrive, parent, state: int) -> np.ndarray:
-    """The cells per step up to `state`, waits written out."""
+def path_of_state(cell, arrive, parent, state: int) -> np.ndarray:
+    """The cells per step from step 0 up to `state`, waits written out (the first state's too: a
+    search may start its robot on its cell at a later step)."""
     end = arrive[state]
     path = np.empty(end + 1, dtype=np.int32)
     m = state
     while m >= 0:
-        for step in range(arrive[m], end + 1):
+        first = arrive[m] if parent[m] >= 0 else 0
+        for step in range(first, end + 1):
             path[step] = cell[m]
         end = arrive[m] - 1
         m = parent[m]
@@ -252,7 +262,7 @@ def sipp(g: Grid, res: Reservations, agent: int, max_expand: int, f_max: int, vi
     parent[0] = -1
     states = 1
     deferred = 0
-    hk[0] = _key(max(drow[start], free_from), 0)
+    hk[0] = heap_key(max(drow[start], free_from), 0)
     hn[0] = 0
     hsize = 1
     hm_put(sk, sv, sm, st_key(start, i0), 0)
@@ -271,7 +281,7 @@ def sipp(g: Grid, res: Reservations, agent: int, max_expand: int, f_max: int, vi
             if sv[hm_slot(sk, st_key(v, ival[node]))] != node:
                 continue        # superseded by an earlier arrival in the same interval
             if v == goal and ival[node] == seg[v, 1]:
-                return _path(cell, arrive, parent, node)
+                return path_of_state(cell, arrive, parent, node)
             expanded += 1
             if expanded > max_expand:
                 break
@@ -307,13 +317,13 @@ def sipp(g: Grid, res: Reservations, agent: int, max_expand: int, f_max: int, vi
                 d_state[deferred] = node
                 d_slot[deferred] = j
                 d_ival[deferred] = -1
-                heap_push(hk, hn, hsize, _key(max(t + 1 + hu, free_from), t + 1), -deferred - 1)
+                heap_push(hk, hn, hsize, heap_key(max(t + 1 + hu, free_from), t + 1), -deferred - 1)
                 hsize += 1
                 deferred += 1
                 continue
             first = rs_lower(seg, ta, u, t + 1) if item >= 0 or d_ival[-item - 1] < 0 else d_ival[-item - 1]
             parked = parked_by_other(park_owner, u, agent)
-            iu, at = _reach(seg, ta, geo, v, t, last[node], u, first, parked)
+            iu, at = reach(seg, ta, geo, v, t, last[node], u, first, parked)
             if iu < 0:
                 continue
             key = st_key(u, iu)
@@ -326,7 +336,7 @@ def sipp(g: Grid, res: Reservations, agent: int, max_expand: int, f_max: int, vi
                 last[states] = interval(seg, ta, u, iu)[1]
                 parent[states] = node
                 hm_put(sk, sv, sm, key, states)
-                heap_push(hk, hn, hsize, _key(max(at + hu, free_from), at), states)
+                heap_push(hk, hn, hsize, heap_key(max(at + hu, free_from), at), states)
                 hsize += 1
                 states += 1
             # the later intervals of u, for when this one leads nowhere
@@ -338,7 +348,7 @@ def sipp(g: Grid, res: Reservations, agent: int, max_expand: int, f_max: int, vi
                     d_slot[deferred] = j
                     d_ival[deferred] = iu + 1
                     at = max(t + 1, lo)
-                    heap_push(hk, hn, hsize, _key(max(at + hu, free_from), at), -deferred - 1)
+                    heap_push(hk, hn, hsize, heap_key(max(at + hu, free_from), at), -deferred - 1)
                     hsize += 1
                     deferred += 1
     return np.empty(0, dtype=np.int32)
