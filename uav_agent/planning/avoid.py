@@ -57,6 +57,7 @@ class Repair:
     held: frozenset[int]              # robots held on their cells through the window
     frozen: bool                      # every robot held: a hold found no way on, or the budget ran out
     seconds: float
+    displaced: frozenset[int] = frozenset()   # robots replanned because a held robot needed their way
 
 
 _GEOMETRY: list[tuple[GridGraph, Geometry]] = []
@@ -125,6 +126,7 @@ class _Cascade:
         self.replanned: set[int] = set()
         self.held: set[int] = set()
         self.cleared: set[int] = set()
+        self.displaced: set[int] = set()
         self.queue: deque[int] = deque()
 
     def route(self, a: int, hold: int) -> np.ndarray:
@@ -137,6 +139,7 @@ class _Cascade:
         return p
 
     def evict(self, b: int) -> None:
+        self.displaced.add(b)
         unreserve(self.res, self.current[b])
         self.booked[b] = False
         self.replanned.discard(b)
@@ -233,7 +236,8 @@ def repair(free: np.ndarray, paths: Mapping[int, Sequence[Cell]], forecast: Fore
         flat = graph.cells[current[a]]
         out[robots[a]] = list(zip((flat % w).tolist(), (flat // w).tolist()))
     return Repair(out, frozenset(robots[a] for a in np.flatnonzero(met)), frozenset(robots[a] for a in replanned),
-                  frozenset(robots[a] for a in held), False, time.perf_counter() - began)
+                  frozenset(robots[a] for a in held), False, time.perf_counter() - began,
+                  frozenset(robots[a] for a in fix.displaced))
 
 
 

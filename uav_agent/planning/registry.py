@@ -51,8 +51,6 @@ SPECS: tuple[PlannerSpec, ...] = (
 # the distance fields (before any planner), and the refinement (after a refinable one)
 DISTANCE_KERNELS = ("mapf.distances._bfs_rows",)
 REFINE_KERNELS = ("mapf.refine._refine",)
-# The rolling-horizon repair around people, forklifts and pallets (avoid.py), before every tick among them
-MOVER_KERNELS = ("mapf.dynamic.plan_around", "mapf.dynamic.book_all", "mapf.dynamic.met_forecast")
 REFINE_LIBRARY = 1
 
 # LaCAM is complete and, with PIBT as its configuration generator, the fastest of them.

@@ -79,7 +79,8 @@ def _record_workload() -> None:
             refine(inst, *trimmed(inst, hist), 0.05)
             improve(problem, [[(0, 0)] * 3 + [(1, 0)]] + [[s, s] for s in starts[1:]], 0.05)
     distances.UNREACHABLE_16 = narrow
-    from ..avoid import warm_up as warm_up_repair   # the repair among movers: its three kernels
+    # The repair among movers (avoid.py), whose kernels the JIT compiles only in a mission with movers.
+    from ..avoid import warm_up as warm_up_repair
 
     warm_up_repair()
 

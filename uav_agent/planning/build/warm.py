@@ -25,13 +25,12 @@ import time
 
 from ..compile.cache import built, cache_dir, cached
 from ..compile.lock import kernel_lock, lock_path, try_lock
-from ..registry import DEFAULT_PLANNER, DISTANCE_KERNELS, MOVER_KERNELS, SPECS, spec
+from ..registry import DEFAULT_PLANNER, DISTANCE_KERNELS, SPECS, spec
 from .child import child_env
 
 # One kernel per family `warm_up` compiles, (module, function): the cache is warm when each has
 # an index written after its source file last changed.
-MARKERS = tuple(tuple(k.rsplit(".", 1)) for k in (*DISTANCE_KERNELS, *(k for s in SPECS for k in s.kernels),
-                                                  MOVER_KERNELS[0]))
+MARKERS = tuple(tuple(k.rsplit(".", 1)) for k in (*DISTANCE_KERNELS, *(k for s in SPECS for k in s.kernels)))
 
 # Below the mission, always: what it shares the cores with while the vehicle climbs and surveys
 # is the mission's own work (a fresh clone's 450 survey took 9.5-10.3 s beside a compile at the
@@ -89,8 +88,6 @@ def warm_up(planner: str = DEFAULT_PLANNER, connectivity: int = 4) -> float:
         for name in dict.fromkeys([planner, *(s.name for s in SPECS if s.kernels)]):
             plan_mission(free, [(0, 0), (5, 5)], [(5, 5), (0, 0)], planner=name, connectivity=connectivity,
                          time_limit=600.0, fallback=True)
-        from ..avoid import warm_up as warm_up_repair   # the repair among movers (MOVER_KERNELS)
-        warm_up_repair()
     finally:
         if aside is not None and aside.poll() is None:
             aside.kill()
